@@ -1,0 +1,58 @@
+"""The result type of calibrate(): camera, ground plane, placed people, uncertainties."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .frame import FloatArray
+
+
+@dataclass(frozen=True)
+class Uncertainty:
+    """1-sigma uncertainties of the calibration (Gauss-Newton covariance at the solution)."""
+
+    fx_px: float
+    fy_px: float
+    normal_deg: float  # RMS angle between the estimated and the true normal
+    rho_m: float
+    covariance: FloatArray  # over the internal camera parameters (see CameraParams)
+    noise_px: float  # keypoint noise estimated from the residuals
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """A solved camera: K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] and ground N . X + rho = 0.
+
+    Camera frame x right, y down, z forward; normal is a unit vector pointing up;
+    rho (metres) is the camera centre's height above the ground. Per-person arrays
+    follow the input order; rejected people have NaN rows and inliers False.
+    """
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    normal: FloatArray
+    rho: float
+    image_size: tuple[float, float]
+    height_m: float
+    points_bottom: FloatArray
+    points_top: FloatArray
+    heights: FloatArray
+    inliers: FloatArray
+    uncertainty: Uncertainty | None = None
+    distortion_k: float = 0.0  # division model on pixel radius: x_u = c + (x_d - c) / (1 + k r^2)
+    refined: bool = False
+    ransac_iterations: int = 0
+    reprojection_rms_px: float = float("nan")
+    extras: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def K(self) -> FloatArray:  # noqa: N802 - the conventional name of the intrinsic matrix
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def num_inliers(self) -> int:
+        return int(np.count_nonzero(self.inliers))
