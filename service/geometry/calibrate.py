@@ -5,16 +5,22 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .calibration import Calibration
+from .calibration import Calibration, Uncertainty
 from .errors import CalibrationError
 from .frame import FloatArray, ImageFrame
-from .linear import LinearSolution, solve_linear
-from .reconstruct import place_people
+from .frame import homogeneous
+from .linear import LinearSolution, sampson_distances, solve_linear
+from .ransac import RansacSettings, minimal_size, ransac
+from .reconstruct import intersect_plane, place_people, rays
+from .refine import Refinement, fit_camera
+from .uncertainty import canonical_covariance, summarise
 
 # Ankle-centre to shoulder-centre height of an average adult (metres): shoulder
 # (acromion) height ~0.82 x stature minus ankle height ~0.07 m, for a mixed adult
 # population of mean stature ~1.69 m. The paper's simulations use 1.7.
 DEFAULT_HEIGHT_M = 1.32
+# Spread of that height across adults (metres): the prior's std in the refinement.
+DEFAULT_HEIGHT_STD_M = 0.08
 # Points further outside the image than this many image sizes are rejected as absurd.
 _OUTSIDE_MARGIN = 1.0
 
@@ -76,6 +82,10 @@ def calibrate(
     seed: int | None = 0,
     principal_point: tuple[float, float] | None = None,
     focal_px: float | tuple[float, float] | None = None,
+    inlier_px: float | None = None,
+    height_tolerance: float = 0.3,
+    max_iterations: int = 5000,
+    height_std: float = DEFAULT_HEIGHT_STD_M,
 ) -> Calibration:
     """Calibrate a camera from people's shoulder-centre (tops) and ankle-centre (bottoms) pixels.
 
@@ -92,8 +102,53 @@ def calibrate(
             raise CalibrationError(f"focal_px must be positive, got {focal_px!r}")
         focal_n = (float(f[0]) / frame.scale_px, float(f[1]) / frame.scale_px)
     inliers = usable.copy()
-    solution: LinearSolution = solve_linear(tops_n[inliers], bottoms_n[inliers], height, equal_focal, focal_n)
-    return _finish(frame, tops_n, bottoms_n, inliers, solution, height)
+    iterations = 0
+    if robust is None or robust:
+        settings = RansacSettings(
+            inlier_px=default_inlier_px(image_size) if inlier_px is None else inlier_px,
+            height_tolerance=height_tolerance,
+            max_iterations=max_iterations,
+        )
+        found = ransac(
+            tops_n[usable], bottoms_n[usable], height, equal_focal, focal_n, frame.scale_px, settings,
+            np.random.default_rng(seed),
+        )
+        inliers[usable] = found.inliers
+        solution: LinearSolution = found.solution
+        iterations = found.iterations
+    else:
+        solution = solve_linear(tops_n[inliers], bottoms_n[inliers], height, equal_focal, focal_n)
+    if inliers.sum() < minimal_size(equal_focal, focal_n is not None):
+        raise CalibrationError("too few people agree on one camera")
+    noise_n = estimate_noise_n(tops_n[inliers], bottoms_n[inliers], solution)
+    _, _, start_heights = place_people(
+        tops_n[inliers], bottoms_n[inliers], solution.focal_n, solution.normal, solution.rho_m, height
+    )
+    fit = fit_camera(
+        tops_n[inliers], bottoms_n[inliers], solution, start_heights, height, height_std, noise_n,
+        equal_focal, focal_n, optimise=refine is None or refine,
+    )
+    cov = canonical_covariance(fit.camera, fit.theta, fit.covariance, frame.scale_px)
+    uncertainty = summarise(cov, noise_n * frame.scale_px)
+    return _finish(frame, tops_n, bottoms_n, inliers, fit, height, iterations, uncertainty, refine is None or refine)
+
+
+def estimate_noise_n(tops_n: FloatArray, bottoms_n: FloatArray, solution: LinearSolution) -> float:
+    """Keypoint noise std (normalised units) from the height-free direction residuals.
+
+    A Sampson distance is the noise projected on one direction, so its square is
+    sigma^2 chi^2_1 distributed; the median (0.455 sigma^2) keeps stray outliers out.
+    """
+    v = np.array([solution.normal[0] * solution.focal_n[0], solution.normal[1] * solution.focal_n[1],
+                  solution.normal[2]])
+    d = sampson_distances(homogeneous(tops_n), homogeneous(bottoms_n), v)
+    dof = max(len(d) - 2, 1)
+    return max(float(np.sqrt(np.median(d * d) / 0.455 * len(d) / dof)), 1e-7)
+
+
+def default_inlier_px(image_size: tuple[float, float]) -> float:
+    """0.3 % of the image diagonal (6.6 px at 1080p), at least 3 px: a few times real keypoint noise."""
+    return max(3.0, 0.003 * float(np.hypot(image_size[0], image_size[1])))
 
 
 def _finish(
@@ -101,10 +156,19 @@ def _finish(
     tops_n: FloatArray,
     bottoms_n: FloatArray,
     inliers: FloatArray,
-    solution: LinearSolution,
+    fit: Refinement,
     height: float,
+    iterations: int,
+    uncertainty: Uncertainty,
+    refined: bool,
 ) -> Calibration:
+    solution = fit.solution
     x_b, x_t, heights = place_people(tops_n, bottoms_n, solution.focal_n, solution.normal, solution.rho_m, height)
+    if refined:
+        # The fitted people get their maximum-likelihood positions and heights.
+        x_b[inliers] = intersect_plane(rays(fit.ankles_n, solution.focal_n), solution.normal, solution.rho_m)
+        heights[inliers] = fit.heights_m
+        x_t[inliers] = x_b[inliers] + fit.heights_m[:, None] * solution.normal
     placed = inliers & np.all(np.isfinite(x_b), axis=1)
     x_b[~placed] = np.nan
     x_t[~placed] = np.nan
@@ -122,4 +186,8 @@ def _finish(
         points_top=x_t,
         heights=heights,
         inliers=placed,
+        ransac_iterations=iterations,
+        refined=refined,
+        uncertainty=uncertainty,
+        reprojection_rms_px=fit.rms_residual * frame.scale_px,
     )

@@ -26,7 +26,7 @@ def intersect_plane(ray: FloatArray, normal: FloatArray, offset_m: float | Float
     A ray misses when it runs parallel to or away from the plane (normal . ray >= 0
     for a plane below the camera): e.g. a foot seen above the horizon.
     """
-    denom = ray @ normal
+    denom = np.sum(ray * normal, -1)
     with np.errstate(divide="ignore", invalid="ignore"):
         t = np.where(denom < 0, -np.asarray(offset_m) / denom, np.nan)
     return ray * t[..., None]
@@ -34,9 +34,9 @@ def intersect_plane(ray: FloatArray, normal: FloatArray, offset_m: float | Float
 
 def heights_above_ground(points_bottom: FloatArray, ray_top: FloatArray, normal: FloatArray) -> FloatArray:
     """Each person's height (m): where the shoulder ray passes closest to the vertical through the ankle."""
-    nr = ray_top @ normal
+    nr = np.sum(ray_top * normal, -1)
     rr = np.sum(ray_top * ray_top, -1)
-    nx = points_bottom @ normal
+    nx = np.sum(points_bottom * normal, -1)
     rx = np.sum(ray_top * points_bottom, -1)
     # minimise |X_B + t N - s r|^2 over (t, s); |N| = 1.
     det = rr - nr * nr

@@ -33,7 +33,9 @@ class SceneConfig:
     noise_px: float = 0.5
     camera_height_m: tuple[float, float] = (2.0, 8.0)
     pitch_deg: tuple[float, float] = (15.0, 60.0)
-    roll_deg: tuple[float, float] = (-30.0, 30.0)
+    # Roll magnitude, applied with a random sign. fx is unobservable at zero roll
+    # (v = K N then has no x component), so the fx != fy tables keep it away from 0.
+    roll_deg: tuple[float, float] = (10.0, 40.0)
     max_range_m: float = 25.0
     distortion_k: tuple[float, float] = (0.0, 0.0)  # OpenCV k1, k2 on focal-normalised radius
     outlier_fraction: float = 0.0
@@ -53,7 +55,7 @@ class SceneConfig:
             noise_px=1.5,
             camera_height_m=(3.0, 10.0),
             pitch_deg=(10.0, 60.0),
-            roll_deg=(-5.0, 5.0),
+            roll_deg=(0.0, 5.0),
             max_range_m=30.0,
         )
         return replace(base, **overrides)  # type: ignore[arg-type]
@@ -117,7 +119,8 @@ def draw_scene(config: SceneConfig, rng: np.random.Generator, max_attempts: int 
     for _ in range(max_attempts):
         fy = (height / 2.0) / np.tan(np.radians(_uniform(rng, config.vfov_deg)) / 2.0)
         fx = fy if config.square_pixels else fy * width / height
-        normal = camera_normal(_uniform(rng, config.pitch_deg), _uniform(rng, config.roll_deg))
+        roll = _uniform(rng, config.roll_deg) * rng.choice((-1.0, 1.0))
+        normal = camera_normal(_uniform(rng, config.pitch_deg), roll)
         rho = _uniform(rng, config.camera_height_m)
         placed = _place_visible_people(rng, config, fx, fy, normal, rho)
         if placed is not None:
