@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .calibration import Calibration, Uncertainty
+from .calibration import Calibration
 from .errors import CalibrationError
-from .frame import FloatArray, ImageFrame
-from .frame import homogeneous
+from .frame import FloatArray, ImageFrame, homogeneous
 from .linear import LinearSolution, sampson_distances, solve_linear
 from .ransac import RansacSettings, minimal_size, ransac
 from .reconstruct import intersect_plane, place_people, rays
@@ -21,6 +22,14 @@ from .uncertainty import canonical_covariance, summarise
 DEFAULT_HEIGHT_M = 1.32
 # Spread of that height across adults (metres): the prior's std in the refinement.
 DEFAULT_HEIGHT_STD_M = 0.08
+# Floor of the keypoint noise estimate, as a fraction of the image diagonal
+# (0.04 px at 1080p). No pose model is better than this; it keeps the
+# likelihood well conditioned on perfect synthetic input. Relative, so that
+# scaling an image and its points changes nothing but f.
+MIN_NOISE_FRACTION = 2e-5
+# Focal lengths outside this many image widths are treated as a failed solve
+# (0.05: a > 170 deg fisheye; 50: a > 1000 mm lens on a full-frame sensor).
+_FOCAL_RANGE = (0.05, 50.0)
 # Points further outside the image than this many image sizes are rejected as absurd.
 _OUTSIDE_MARGIN = 1.0
 
@@ -83,14 +92,17 @@ def calibrate(
     principal_point: tuple[float, float] | None = None,
     focal_px: float | tuple[float, float] | None = None,
     inlier_px: float | None = None,
-    height_tolerance: float = 0.3,
+    height_tolerance: float = 0.2,
     max_iterations: int = 5000,
     height_std: float = DEFAULT_HEIGHT_STD_M,
+    uncertainty: bool = True,
 ) -> Calibration:
     """Calibrate a camera from people's shoulder-centre (tops) and ankle-centre (bottoms) pixels.
 
     height is the ankle-centre-to-shoulder-centre height prior in metres. With
-    robust/refine left as None, the most accurate pipeline is used.
+    robust/refine left as None, the most accurate pipeline is used (RANSAC, then
+    the maximum-likelihood refinement). uncertainty=False skips the covariance
+    (only useful when nothing but the point estimate is wanted, fast).
     """
     tops_px, bottoms_px, usable = validate_keypoints(tops, bottoms, image_size, height)
     frame = ImageFrame.from_size(image_size, principal_point)
@@ -120,17 +132,79 @@ def calibrate(
         solution = solve_linear(tops_n[inliers], bottoms_n[inliers], height, equal_focal, focal_n)
     if inliers.sum() < minimal_size(equal_focal, focal_n is not None):
         raise CalibrationError("too few people agree on one camera")
-    noise_n = estimate_noise_n(tops_n[inliers], bottoms_n[inliers], solution)
-    _, _, start_heights = place_people(
-        tops_n[inliers], bottoms_n[inliers], solution.focal_n, solution.normal, solution.rho_m, height
+    optimise = refine is None or refine
+    fit = None
+    if optimise or uncertainty:
+        noise_floor_n = MIN_NOISE_FRACTION * frame.diagonal_px / frame.scale_px
+        noise_n = max(estimate_noise_n(tops_n[inliers], bottoms_n[inliers], solution), noise_floor_n)
+        _, _, start_heights = place_people(
+            tops_n[inliers], bottoms_n[inliers], solution.focal_n, solution.normal, solution.rho_m, height
+        )
+        fit = fit_camera(
+            tops_n[inliers], bottoms_n[inliers], solution, start_heights, height, height_std, noise_n,
+            equal_focal, focal_n, optimise=optimise,
+        )
+        if optimise and robust is not False:
+            fit, inliers = _reject_misfits(fit, tops_n, bottoms_n, inliers, height, height_std, equal_focal, focal_n)
+        solution = fit.solution
+    cal = _finish(frame, tops_n, bottoms_n, inliers, solution, fit if optimise else None, height, iterations)
+    if fit is not None and uncertainty:
+        cov = canonical_covariance(fit.camera, fit.theta, fit.covariance, frame.scale_px)
+        cal = replace(cal, uncertainty=summarise(cov, fit.noise_n * frame.scale_px),
+                      reprojection_rms_px=fit.rms_residual * frame.scale_px)
+    check_plausible(cal, minimal_size(equal_focal, focal_n is not None))
+    return cal
+
+
+def check_plausible(cal: Calibration, minimum_people: int) -> None:
+    """Refuse results no real camera could produce, rather than return them."""
+    longest = max(cal.image_size)
+    for name, f in (("fx", cal.fx), ("fy", cal.fy)):
+        if not (np.isfinite(f) and _FOCAL_RANGE[0] * longest <= f <= _FOCAL_RANGE[1] * longest):
+            raise CalibrationError(f"implausible focal length {name} = {f:.4g} px for a {longest:g} px wide image")
+    if not (np.isfinite(cal.rho) and cal.rho > 0 and np.all(np.isfinite(cal.normal))):
+        raise CalibrationError("no finite ground plane below the camera")
+    if cal.num_inliers < minimum_people:
+        raise CalibrationError(f"only {cal.num_inliers} people could be placed on the ground plane")
+
+
+# A person whose whitened residual cost exceeds this (chi^2 with 2 degrees of
+# freedom: 5 residuals minus 3 own parameters, p = 0.999) is not explained by the
+# camera and is dropped before the final fit.
+_CHI2_2DOF_999 = 13.8
+_CHI2_2DOF_MEDIAN = 1.386
+
+
+def _reject_misfits(
+    fit: Refinement,
+    tops_n: FloatArray,
+    bottoms_n: FloatArray,
+    inliers: FloatArray,
+    height: float,
+    height_std: float,
+    equal_focal: bool,
+    focal_n: tuple[float, float] | None,
+) -> tuple[Refinement, FloatArray]:
+    """Second, likelihood-based inlier test after the ML fit; refit once without the misfits.
+
+    RANSAC's tests are coarse (fixed tolerances); the fitted model knows each
+    person's expected residual, so mild outliers that slipped through (people
+    on a step, leaning) stand out here. The cut scales with the median cost so a
+    misjudged noise level cannot make it reject everyone.
+    """
+    cost = fit.person_costs
+    cut = _CHI2_2DOF_999 * max(float(np.median(cost)) / _CHI2_2DOF_MEDIAN, 1.0)
+    keep = cost <= cut
+    if keep.all() or keep.sum() < max(minimal_size(equal_focal, focal_n is not None), 0.5 * len(keep)):
+        return fit, inliers
+    subset = np.flatnonzero(inliers)[keep]
+    refit = fit_camera(
+        tops_n[subset], bottoms_n[subset], fit.solution, fit.heights_m[keep], height, height_std, fit.noise_n,
+        equal_focal, focal_n,
     )
-    fit = fit_camera(
-        tops_n[inliers], bottoms_n[inliers], solution, start_heights, height, height_std, noise_n,
-        equal_focal, focal_n, optimise=refine is None or refine,
-    )
-    cov = canonical_covariance(fit.camera, fit.theta, fit.covariance, frame.scale_px)
-    uncertainty = summarise(cov, noise_n * frame.scale_px)
-    return _finish(frame, tops_n, bottoms_n, inliers, fit, height, iterations, uncertainty, refine is None or refine)
+    narrowed = np.zeros_like(inliers)
+    narrowed[subset] = True
+    return refit, narrowed
 
 
 def estimate_noise_n(tops_n: FloatArray, bottoms_n: FloatArray, solution: LinearSolution) -> float:
@@ -143,12 +217,15 @@ def estimate_noise_n(tops_n: FloatArray, bottoms_n: FloatArray, solution: Linear
                   solution.normal[2]])
     d = sampson_distances(homogeneous(tops_n), homogeneous(bottoms_n), v)
     dof = max(len(d) - 2, 1)
-    return max(float(np.sqrt(np.median(d * d) / 0.455 * len(d) / dof)), 1e-7)
+    return float(np.sqrt(np.median(d * d) / 0.455 * len(d) / dof))
 
 
 def default_inlier_px(image_size: tuple[float, float]) -> float:
-    """0.3 % of the image diagonal (6.6 px at 1080p), at least 3 px: a few times real keypoint noise."""
-    return max(3.0, 0.003 * float(np.hypot(image_size[0], image_size[1])))
+    """0.3 % of the image diagonal (6.6 px at 1080p): a few times real keypoint noise.
+
+    Relative to the image, not absolute, so calibration is invariant to image scaling.
+    """
+    return 0.003 * float(np.hypot(image_size[0], image_size[1]))
 
 
 def _finish(
@@ -156,15 +233,13 @@ def _finish(
     tops_n: FloatArray,
     bottoms_n: FloatArray,
     inliers: FloatArray,
-    fit: Refinement,
+    solution: LinearSolution,
+    fit: Refinement | None,
     height: float,
     iterations: int,
-    uncertainty: Uncertainty,
-    refined: bool,
 ) -> Calibration:
-    solution = fit.solution
     x_b, x_t, heights = place_people(tops_n, bottoms_n, solution.focal_n, solution.normal, solution.rho_m, height)
-    if refined:
+    if fit is not None:
         # The fitted people get their maximum-likelihood positions and heights.
         x_b[inliers] = intersect_plane(rays(fit.ankles_n, solution.focal_n), solution.normal, solution.rho_m)
         heights[inliers] = fit.heights_m
@@ -187,7 +262,5 @@ def _finish(
         heights=heights,
         inliers=placed,
         ransac_iterations=iterations,
-        refined=refined,
-        uncertainty=uncertainty,
-        reprojection_rms_px=fit.rms_residual * frame.scale_px,
+        refined=fit is not None,
     )

@@ -41,6 +41,10 @@ class ImageFrame:
         # Half the mean side: maps a typical image onto roughly [-1.3, 1.3] x [-0.8, 0.8].
         return cls(width, height, float(cx), float(cy), (width + height) / 4.0)
 
+    @property
+    def diagonal_px(self) -> float:
+        return float(np.hypot(self.width_px, self.height_px))
+
     def normalise(self, points_px: ArrayLike) -> FloatArray:
         p = np.asarray(points_px, dtype=np.float64)
         return np.stack(((p[..., 0] - self.cx_px) / self.scale_px, (p[..., 1] - self.cy_px) / self.scale_px), -1)

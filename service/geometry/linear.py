@@ -87,7 +87,9 @@ def _smallest_eigenvector(lines: FloatArray, weights: FloatArray) -> FloatArray:
     return eigvec[:, 0]
 
 
-def scaled_depths(tops_h: FloatArray, bottoms_h: FloatArray, v: FloatArray, height_m: float) -> tuple[FloatArray, FloatArray]:
+def scaled_depths(
+    tops_h: FloatArray, bottoms_h: FloatArray, v: FloatArray, height_m: float
+) -> tuple[FloatArray, FloatArray]:
     """Least-squares (lambda_T, lambda_B) of Eq. 1 per person, up to the common scale mu.
 
     Shapes (..., n, 3) for the points and (..., 1, 3) for v.
@@ -118,7 +120,8 @@ def focal_weights(bottoms_h: FloatArray, lam_b: FloatArray, v: FloatArray, equal
         m00, m01, m11 = np.sum(b0 * b0, -1), np.sum(b0 * b1, -1), np.sum(b1 * b1, -1)
         r0, r1 = np.sum(b0 * y, -1), np.sum(b1 * y, -1)
         det = m00 * m11 - m01 * m01
-        det = np.where(det > RANK_TOL * m00 * m11, det, np.nan)
+        yy = RANK_TOL * np.sum(y * y, -1)
+        det = np.where((det > RANK_TOL * m00 * m11) & (m00 > yy) & (m11 > yy), det, np.nan)
         return np.stack(((m11 * r0 - m01 * r1) / det, (m00 * r1 - m01 * r0) / det), -1)
 
 

@@ -13,6 +13,11 @@ then scored on every person at once. Inlier test, per person, for a hypothesis
   within ``height_tolerance`` (relative) of the prior. This catches people whose
   direction is fine but whose scale is not: sitting people, people on stairs.
 
+Once a winner exists, the keypoint noise is estimated from everyone's
+direction residuals (median absolute deviation) and both tests are widened to
+3 sigma of it, the height test per person by the relative error that noise
+causes on that person's segment length; the refits use the widened tests.
+
 Both residuals are combined into one MSAC cost c = (d/inlier_px)^2 +
 ((h/h0 - 1)/height_tolerance)^2, truncated at 1; an inlier has c < 1. The loop
 stops adaptively once the best inlier ratio makes a better sample unlikely at
@@ -23,22 +28,33 @@ caller's numpy Generator, so a seed makes the result deterministic.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .errors import CalibrationError
 from .frame import FloatArray, homogeneous
-from .linear import LinearSolution, focal_weights, normal_and_rho, scaled_depths, segment_lines, solve_linear
+from .linear import (
+    LinearSolution,
+    focal_weights,
+    normal_and_rho,
+    sampson_distances,
+    scaled_depths,
+    segment_lines,
+    solve_linear,
+)
 
 
 @dataclass(frozen=True)
 class RansacSettings:
     inlier_px: float
-    height_tolerance: float = 0.3
+    height_tolerance: float = 0.2
     confidence: float = 0.999
     max_iterations: int = 5000
     batch: int = 128
+    # Keypoint noise (px) once estimated: widens both tests so that noisy
+    # detections (and the short segments of distant people) are not thrown out.
+    noise_px: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -73,12 +89,18 @@ def solve_minimal(
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
     """Hypotheses from (M, m, 3) minimal samples: focal (M, 2), normal (M, 3), rho (M,), v (M, 3)."""
     lines = segment_lines(tops_h, bottoms_h)
+    lines = lines / np.linalg.norm(lines, axis=-1, keepdims=True)
     if lines.shape[1] == 2:
         v = np.cross(lines[:, 0], lines[:, 1])
+        distinct = np.linalg.norm(v, axis=-1) > 1e-9
     else:
-        lines = lines / np.linalg.norm(lines, axis=-1, keepdims=True)
-        v = np.linalg.eigh(np.einsum("mni,mnj->mij", lines, lines))[1][..., 0]
-    v = v / np.linalg.norm(v, axis=-1, keepdims=True)
+        eigval, eigvec = np.linalg.eigh(np.einsum("mni,mnj->mij", lines, lines))
+        v = eigvec[..., 0]
+        distinct = eigval[:, 1] > 1e-9 * eigval[:, 2]
+    # Coincident image lines (two people on one line) say nothing about v.
+    v = np.where(distinct[:, None], v, np.nan)
+    with np.errstate(invalid="ignore"):
+        v = v / np.linalg.norm(v, axis=-1, keepdims=True)
     v3 = v[:, None, :]
     lam_t, lam_b = scaled_depths(tops_h, bottoms_h, v3, height_m)
     if focal_n is None:
@@ -124,7 +146,10 @@ def score_hypotheses(
         rr = tx * tx * ia2 + ty * ty * ib2 + 1.0
         rx = -rho[:, None] * (tx * bx * ia2 + ty * by * ib2 + 1.0) / denom
         h = (rho[:, None] * rr + nr * rx) / (rr - nr * nr)
-        cost = (d_px / settings.inlier_px) ** 2 + ((h / height_m - 1.0) / settings.height_tolerance) ** 2
+        inlier_px = max(settings.inlier_px, 3.0 * settings.noise_px)
+        length_px = np.hypot(tx - bx, ty - by) * scale_px
+        tolerance2 = settings.height_tolerance**2 + (3.0 * np.sqrt(2.0) * settings.noise_px / length_px) ** 2
+        cost = (d_px / inlier_px) ** 2 + (h / height_m - 1.0) ** 2 / tolerance2
         cost = np.where((denom < 0) & np.isfinite(cost), cost, 1.0)
     return np.minimum(cost, 1.0)
 
@@ -168,10 +193,16 @@ def ransac(
         raise CalibrationError("no consistent group of upright people found (RANSAC found no valid hypothesis)")
     solution = LinearSolution((float(best[0][0]), float(best[0][1])), best[1], best[2])
     inliers = best_inliers
-    for _ in range(2):
+    v = solution.normal * np.array([solution.focal_n[0], solution.focal_n[1], 1.0])
+    # Median absolute direction residual of everyone under the winner (robust while < 50 % are outliers).
+    noise_px = 1.4826 * float(np.median(np.abs(sampson_distances(tops_h, bottoms_h, v)))) * scale_px
+    settings = replace(settings, noise_px=noise_px)
+    for round_ in range(2):
         try:
             refit = solve_linear(tops_n[inliers], bottoms_n[inliers], height_m, equal_focal, focal_n)
         except CalibrationError:
+            if round_ == 0:
+                raise  # the winning consensus set itself is degenerate: no trustworthy camera
             break
         costs = score_hypotheses(
             tops_n, bottoms_n, np.array([refit.focal_n]), refit.normal[None], np.array([refit.rho_m]),

@@ -89,7 +89,9 @@ def camera_normal(pitch_deg: float, roll_deg: float) -> FloatArray:
     return rot @ level
 
 
-def project(points: FloatArray, fx: float, fy: float, cx: float, cy: float, k: tuple[float, float] = (0.0, 0.0)) -> FloatArray:
+def project(
+    points: FloatArray, fx: float, fy: float, cx: float, cy: float, k: tuple[float, float] = (0.0, 0.0)
+) -> FloatArray:
     """Pinhole projection to pixels, with OpenCV-style radial distortion when k != 0."""
     xn = points[..., 0] / points[..., 2]
     yn = points[..., 1] / points[..., 2]
@@ -134,7 +136,7 @@ def draw_scene(config: SceneConfig, rng: np.random.Generator, max_attempts: int 
     tops = project(x_t, fx, fy, cx, cy, config.distortion_k)
     outliers = np.zeros(config.n_people, bool)
     if config.outlier_fraction > 0:
-        outliers[rng.permutation(config.n_people)[: int(round(config.outlier_fraction * config.n_people))]] = True
+        outliers[rng.permutation(config.n_people)[: round(config.outlier_fraction * config.n_people)]] = True
         tops, bottoms = _corrupt(rng, config, outliers, x_b, heights, normal, fx, fy, tops, bottoms)
     tops = tops + rng.normal(0.0, config.noise_px, tops.shape)
     bottoms = bottoms + rng.normal(0.0, config.noise_px, bottoms.shape)
@@ -212,4 +214,6 @@ def _corrupt(
         else:
             bottoms[i] = rng.uniform((0, 0), (width, height))
             tops[i] = bottoms[i] + rng.uniform((-150, -300), (150, -20))
-    return tops, bottoms
+    # A detector reports points inside the frame, however wrong they are.
+    size = np.array([width, height], dtype=np.float64)
+    return np.clip(tops, 0.0, size), np.clip(bottoms, 0.0, size)

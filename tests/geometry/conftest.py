@@ -1,0 +1,23 @@
+"""Shared helpers for the geometry tests: exact synthetic scenes and error metrics."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from service.geometry.simulate import Scene, SceneConfig, draw_scene
+
+
+def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b)), a @ b)))
+
+
+def scene(seed: int, **overrides: object) -> Scene:
+    square = bool(overrides.pop("surveillance", False))
+    config = SceneConfig.surveillance(**overrides) if square else SceneConfig.paper(**overrides)
+    return draw_scene(config, np.random.default_rng(seed))
+
+
+@pytest.fixture
+def exact_scene() -> Scene:
+    return scene(7, noise_px=0.0, height_std_m=0.0)
