@@ -13,8 +13,12 @@ from rich.console import Console
 
 from service import __version__
 
-app = typer.Typer(name="posemetry", help="Camera auto-calibration and physical distances from human pose.",
-                  no_args_is_help=True, add_completion=False)
+app = typer.Typer(
+    name="posemetry",
+    help="Camera auto-calibration and physical distances from human pose.",
+    no_args_is_help=True,
+    add_completion=False,
+)
 bench_app = typer.Typer(help="Benchmarks: accuracy against the paper's protocol, and speed.", no_args_is_help=True)
 app.add_typer(bench_app, name="bench")
 
@@ -45,8 +49,9 @@ def bench_geometry(
     workers: int = typer.Option(2, min=1, help="Processes for the accuracy experiments (timing runs in one)."),
     quick: bool = typer.Option(False, "--quick", help=f"Smoke run: {QUICK_TRIALS} trials per setting."),
     only: str | None = typer.Option(
-        None, help="Comma-separated experiments: noise-free, table1, table2, table3, outliers, distance, "
-        "surveillance, timing (default: all)."
+        None,
+        help="Comma-separated experiments: noise-free, table1, table2, table3, outliers, distance, "
+        "surveillance, timing (default: all).",
     ),
     repeats: int = typer.Option(50, min=1, help="Timed calls per timing case."),
     markdown: Path | None = typer.Option(None, help="Also write the tables as Markdown to this file."),

@@ -32,6 +32,7 @@ from service.geometry import Calibration, CalibrationError, calibrate
 from service.geometry.simulate import Scene, SceneConfig, draw_scene
 
 from . import paper
+from .paper_literal import calibrate_paper_literal
 from .report import ReportTable, fmt, fmt_pair, yes_no
 
 FloatArray = NDArray[np.float64]
@@ -42,6 +43,9 @@ METHODS: dict[str, dict[str, Any]] = {
     "linear": {"robust": False, "refine": False, "uncertainty": False},
     "robust": {"robust": True, "refine": False, "uncertainty": False},
     "default": {},
+    "distortion": {"distortion": True},
+    # The paper's solver as printed (corrected): pixel coordinates, unweighted, people from their depths.
+    "as-printed": {"solver": "paper-literal"},
 }
 
 # The method whose rows the pass/fail targets of the outlier and distance experiments judge.
@@ -60,15 +64,34 @@ LABELS: Final = {
     "fail_pct": "fail %",
 }
 
-EXPERIMENTS: Final = ("noise-free", "table1", "table2", "table3", "outliers", "distance", "surveillance", "timing")
+# The distortion experiment's k search costs ~0.1 s a scene: it runs at most this many trials per setting.
+DISTORTION_MAX_TRIALS: Final = 300
+EXPERIMENTS: Final = (
+    "noise-free",
+    "table1",
+    "table2",
+    "table3",
+    "outliers",
+    "distance",
+    "surveillance",
+    "distortion",
+    "timing",
+)
 
 NOISE_FREE_RESOLUTIONS: Final = ((640, 480), (1280, 720), (1920, 1080))
 NOISE_FREE_FOVS_DEG: Final = (45.0, 60.0, 90.0, 120.0)
 NOISE_FREE_TOLERANCE: Final = 1e-6  # % for relative errors, degrees for the normal
 OUTLIER_RATIO_TARGET: Final = 1.5
 DISTANCE_TARGETS_PCT: Final = {20: 4.0, 100: 2.0}
-TIMING_CASES: Final = (("linear", 10), ("linear", 100), ("linear", 1000), ("robust", 100), ("robust", 1000),
-                       ("default", 100), ("default", 1000))
+TIMING_CASES: Final = (
+    ("linear", 10),
+    ("linear", 100),
+    ("linear", 1000),
+    ("robust", 100),
+    ("robust", 1000),
+    ("default", 100),
+    ("default", 1000),
+)
 TIMING_TARGETS_MS: Final = {("linear", 1000): 2.0, ("robust", 1000): 50.0}
 
 
@@ -195,7 +218,12 @@ def without_outliers(scene: Scene) -> Scene:
 def run_method(scene: Scene, setting: Setting, method: Mapping[str, Any], seed: int) -> TrialResult:
     kwargs = {"height": setting.config.height_mean_m, "equal_focal": setting.equal_focal, "seed": seed, **method}
     try:
-        cal = calibrate(scene.tops_px, scene.bottoms_px, scene.image_size, **kwargs)
+        if kwargs.pop("solver", None) == "paper-literal":
+            cal = calibrate_paper_literal(
+                scene.tops_px, scene.bottoms_px, scene.image_size, kwargs["height"], kwargs["equal_focal"]
+            )
+        else:
+            cal = calibrate(scene.tops_px, scene.bottoms_px, scene.image_size, **kwargs)
     except CalibrationError as exc:
         return TrialResult.failure(str(exc))
     except Exception as exc:  # a worker must not die: one bug would lose every other trial's result
@@ -277,13 +305,14 @@ class _Context:
     progress: Callable[[str], None]
     unexpected_errors: list[str] = field(default_factory=list)
 
-    def run(self, experiment: str, settings: Sequence[Setting], methods: Sequence[str]) -> Results:
+    def run(
+        self, experiment: str, settings: Sequence[Setting], methods: Sequence[str], max_trials: int | None = None
+    ) -> Results:
         """Summaries keyed by (setting label, method name)."""
         items = tuple((m, dict(METHODS[m])) for m in methods)
         salt = zlib.crc32(experiment.encode())
-        trials = [
-            Trial(s, items, self.options.seed, (salt, i)) for s in settings for i in range(self.options.trials)
-        ]
+        count = self.options.trials if max_trials is None else min(self.options.trials, max_trials)
+        trials = [Trial(s, items, self.options.seed, (salt, i)) for s in settings for i in range(count)]
         start = time.perf_counter()
         if self.executor is None:
             outputs = list(map(run_trial, trials))
@@ -301,8 +330,9 @@ class _Context:
                         f"{experiment} / {setting.label} / {method}: {summary.unexpected} trial(s) raised; "
                         f"first: {summary.first_error}"
                     )
-        self.progress(f"{experiment}: {len(trials)} scenes x {len(methods)} method(s) "
-                      f"in {time.perf_counter() - start:.1f} s")
+        self.progress(
+            f"{experiment}: {len(trials)} scenes x {len(methods)} method(s) in {time.perf_counter() - start:.1f} s"
+        )
         return results
 
 
@@ -368,8 +398,7 @@ def _noise_free(ctx: _Context) -> list[ReportTable]:
         for method in methods:
             s = results[setting.label, method]
             ok = s.failures == 0 and all(s.max[k] < NOISE_FREE_TOLERANCE for k in METRIC_KEYS if k != "dist_m")
-            table.add_row(setting.label, method, *(fmt(s.max[k]) for k in METRIC_KEYS), fmt(s.fail_pct),
-                          yes_no(ok))
+            table.add_row(setting.label, method, *(fmt(s.max[k]) for k in METRIC_KEYS), fmt(s.fail_pct), yes_no(ok))
         table.end_section()
     table.notes.append(
         f"Target: every relative error below {NOISE_FREE_TOLERANCE:g} % and the normal below "
@@ -381,7 +410,7 @@ def _noise_free(ctx: _Context) -> list[ReportTable]:
 def _paper_table(
     ctx: _Context, name: str, title: str, settings: Sequence[Setting], rows: paper.PaperRows
 ) -> list[ReportTable]:
-    methods = ("linear", "default")
+    methods = ("as-printed", "linear", "default")
     results = ctx.run(name, settings, methods)
     table = ReportTable(title, ["error", "row", *(s.label for s in settings)])
     passed = dict.fromkeys(methods, 0)
@@ -391,8 +420,9 @@ def _paper_table(
             cells = []
             for s in settings:
                 summary = results[s.label, method]
-                cells.append(fmt(summary.fail_pct) if key == "fail_pct" else fmt_pair(summary.mean[key],
-                                                                                      summary.median[key]))
+                cells.append(
+                    fmt(summary.fail_pct) if key == "fail_pct" else fmt_pair(summary.mean[key], summary.median[key])
+                )
             table.add_row(LABELS[key] if method == methods[0] else "", method, *cells)
         if key not in rows["Ours"]:
             table.end_section()
@@ -460,8 +490,19 @@ def _outliers(ctx: _Context) -> list[ReportTable]:
     results = ctx.run("outliers", settings, methods)
     table = ReportTable(
         "Outliers: 30% of people sitting, bending, on stairs or misdetected (noise 0.5 px, height std 0.1 m)",
-        ["people", "method", "fx % outliers", "fx % clean", "ratio", f"<= {OUTLIER_RATIO_TARGET:g}",
-         "fx % oracle", "fail % outliers", "fail % clean", "inliers kept %", "outliers kept %"],
+        [
+            "people",
+            "method",
+            "fx % outliers",
+            "fx % clean",
+            "ratio",
+            f"<= {OUTLIER_RATIO_TARGET:g}",
+            "fx % oracle",
+            "fail % outliers",
+            "fail % clean",
+            "inliers kept %",
+            "outliers kept %",
+        ],
     )
     for n in (20, 100):
         for method in methods:
@@ -469,10 +510,17 @@ def _outliers(ctx: _Context) -> list[ReportTable]:
             ratio = dirty.mean["fx_pct"] / clean.mean["fx_pct"] if clean.mean["fx_pct"] > 0 else math.nan
             target = yes_no(math.isfinite(ratio) and ratio <= OUTLIER_RATIO_TARGET) if method == TARGET_METHOD else "-"
             table.add_row(
-                str(n), method, fmt_pair(dirty.mean["fx_pct"], dirty.median["fx_pct"]),
-                fmt_pair(clean.mean["fx_pct"], clean.median["fx_pct"]), fmt(ratio), target,
-                fmt_pair(oracle.mean["fx_pct"], oracle.median["fx_pct"]), fmt(dirty.fail_pct), fmt(clean.fail_pct),
-                fmt(dirty.mean["inliers_placed_pct"]), fmt(dirty.mean["outliers_placed_pct"]),
+                str(n),
+                method,
+                fmt_pair(dirty.mean["fx_pct"], dirty.median["fx_pct"]),
+                fmt_pair(clean.mean["fx_pct"], clean.median["fx_pct"]),
+                fmt(ratio),
+                target,
+                fmt_pair(oracle.mean["fx_pct"], oracle.median["fx_pct"]),
+                fmt(dirty.fail_pct),
+                fmt(clean.fail_pct),
+                fmt(dirty.mean["inliers_placed_pct"]),
+                fmt(dirty.mean["outliers_placed_pct"]),
             )
         table.end_section()
     table.notes.append(
@@ -499,8 +547,15 @@ def _distance(ctx: _Context) -> list[ReportTable]:
         for method in methods:
             s = results[setting.label, method]
             ok = yes_no(s.mean["dist_pct"] <= target) if method == TARGET_METHOD else "-"
-            table.add_row(setting.label, method, fmt_pair(s.mean["dist_pct"], s.median["dist_pct"]),
-                          fmt_pair(s.mean["dist_m"], s.median["dist_m"]), fmt(s.fail_pct), f"<= {target:g}", ok)
+            table.add_row(
+                setting.label,
+                method,
+                fmt_pair(s.mean["dist_pct"], s.median["dist_pct"]),
+                fmt_pair(s.mean["dist_m"], s.median["dist_m"]),
+                fmt(s.fail_pct),
+                f"<= {target:g}",
+                ok,
+            )
         table.end_section()
     table.notes.append(
         "Mean (median) over successful trials of each trial's mean over all pairs of placed people. "
@@ -510,9 +565,7 @@ def _distance(ctx: _Context) -> list[ReportTable]:
 
 
 def _surveillance(ctx: _Context) -> list[ReportTable]:
-    settings = [
-        Setting(f"{n} people", SceneConfig.surveillance(n_people=n), equal_focal=True) for n in (20, 100)
-    ]
+    settings = [Setting(f"{n} people", SceneConfig.surveillance(n_people=n), equal_focal=True) for n in (20, 100)]
     methods = ("default",)
     results = ctx.run("surveillance", settings, methods)
     table = ReportTable(
@@ -522,9 +575,41 @@ def _surveillance(ctx: _Context) -> list[ReportTable]:
     for setting in settings:
         for method in methods:
             s = results[setting.label, method]
-            table.add_row(setting.label, method, *(fmt_pair(s.mean[k], s.median[k]) for k in METRIC_KEYS),
-                          fmt(s.fail_pct))
+            table.add_row(
+                setting.label, method, *(fmt_pair(s.mean[k], s.median[k]) for k in METRIC_KEYS), fmt(s.fail_pct)
+            )
     table.notes.append("Mean (median) over successful trials.")
+    return [table]
+
+
+def _distortion(ctx: _Context) -> list[ReportTable]:
+    """Appendix C's question on a square-pixel camera: does modelling lens distortion help, and under noise?"""
+    settings = [
+        Setting(
+            f"k1 {k1:+g}, {noise:g} px",
+            SceneConfig.surveillance(n_people=50, distortion_k=(k1, 0.0), noise_px=noise, height_std_m=0.07),
+            equal_focal=True,
+        )
+        for k1 in (0.0, 0.05, -0.05, -0.15)
+        for noise in (0.0, 2.0)
+    ]
+    methods = ("default", "distortion")
+    results = ctx.run("distortion", settings, methods, max_trials=DISTORTION_MAX_TRIALS)
+    keys = ("fx_pct", "normal_deg", "rho_pct", "dist_pct")
+    table = ReportTable(
+        "Lens distortion: OpenCV polynomial k1 (focal-normalised radius) on the surveillance preset, 50 people",
+        ["setting", "method", *(LABELS[k] for k in keys), "fail %"],
+    )
+    for setting in settings:
+        for method in methods:
+            s = results[setting.label, method]
+            table.add_row(setting.label, method, *(fmt_pair(s.mean[k], s.median[k]) for k in keys), fmt(s.fail_pct))
+        table.end_section()
+    table.notes.append(
+        f"{min(ctx.options.trials, DISTORTION_MAX_TRIALS)} trials per setting (the k search is the slowest step). "
+        "Mean (median). 'distortion' = calibrate(distortion=True): a one-parameter division model fitted to a "
+        "different (polynomial) lens, kept at k = 0 unless significant."
+    )
     return [table]
 
 
@@ -543,15 +628,17 @@ def _timing(ctx: _Context) -> list[ReportTable]:
         target = TIMING_TARGETS_MS.get((method, n))
         target_cell = f"<= {target:g}" if target is not None else "-"
         try:
-            times_ms = _time_calls(lambda kw=kwargs, s=scene: calibrate(s.tops_px, s.bottoms_px, s.image_size, **kw),
-                                   ctx.options.repeats)
+            times_ms = _time_calls(
+                lambda kw=kwargs, s=scene: calibrate(s.tops_px, s.bottoms_px, s.image_size, **kw), ctx.options.repeats
+            )
         except CalibrationError as exc:
             table.add_row(method, str(n), "failed", "-", target_cell, yes_no(False if target else None))
             table.notes.append(f"{method} with {n} people: {exc}")
             continue
         median, p90 = float(np.median(times_ms)), float(np.percentile(times_ms, 90))
-        table.add_row(method, str(n), fmt(median), fmt(p90), target_cell,
-                      yes_no(median <= target if target is not None else None))
+        table.add_row(
+            method, str(n), fmt(median), fmt(p90), target_cell, yes_no(median <= target if target is not None else None)
+        )
     table.notes.append(
         f"{ctx.options.repeats} timed calls per row after one warm-up call; time.perf_counter, single process. "
         "Targets judge the median."
@@ -580,5 +667,6 @@ _EXPERIMENT_FUNCTIONS: Final[dict[str, Callable[[_Context], list[ReportTable]]]]
     "outliers": _outliers,
     "distance": _distance,
     "surveillance": _surveillance,
+    "distortion": _distortion,
     "timing": _timing,
 }

@@ -56,8 +56,7 @@ def yes_no(ok: bool | None) -> str:
 
 
 def to_rich(table: ReportTable) -> Table:
-    out = Table(title=table.title, title_justify="left", caption="\n".join(table.notes) or None,
-                caption_justify="left")
+    out = Table(title=table.title, title_justify="left", caption="\n".join(table.notes) or None, caption_justify="left")
     for i, name in enumerate(table.columns):
         # Wrap rather than truncate on a narrow terminal: a cut-off number is worse than a tall row.
         out.add_column(name, justify="left" if i == 0 else "right", overflow="fold")

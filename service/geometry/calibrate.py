@@ -8,6 +8,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .calibration import Calibration
+from .distortion import estimate_division_k, undistort
 from .errors import CalibrationError
 from .frame import FloatArray, ImageFrame, homogeneous
 from .linear import LinearSolution, sampson_distances, solve_linear
@@ -96,6 +97,7 @@ def calibrate(
     max_iterations: int = 5000,
     height_std: float = DEFAULT_HEIGHT_STD_M,
     uncertainty: bool = True,
+    distortion: bool = False,
 ) -> Calibration:
     """Calibrate a camera from people's shoulder-centre (tops) and ankle-centre (bottoms) pixels.
 
@@ -103,6 +105,8 @@ def calibrate(
     robust/refine left as None, the most accurate pipeline is used (RANSAC, then
     the maximum-likelihood refinement). uncertainty=False skips the covariance
     (only useful when nothing but the point estimate is wanted, fast).
+    distortion=True also estimates one-parameter division-model lens
+    distortion (Appendix B); it is kept at 0 unless the data call for it.
     """
     tops_px, bottoms_px, usable = validate_keypoints(tops, bottoms, image_size, height)
     frame = ImageFrame.from_size(image_size, principal_point)
@@ -113,23 +117,26 @@ def calibrate(
         if not (np.all(np.isfinite(f)) and np.all(f > 0)):
             raise CalibrationError(f"focal_px must be positive, got {focal_px!r}")
         focal_n = (float(f[0]) / frame.scale_px, float(f[1]) / frame.scale_px)
-    inliers = usable.copy()
-    iterations = 0
-    if robust is None or robust:
-        settings = RansacSettings(
-            inlier_px=default_inlier_px(image_size) if inlier_px is None else inlier_px,
-            height_tolerance=height_tolerance,
-            max_iterations=max_iterations,
-        )
-        found = ransac(
-            tops_n[usable], bottoms_n[usable], height, equal_focal, focal_n, frame.scale_px, settings,
-            np.random.default_rng(seed),
-        )
-        inliers[usable] = found.inliers
-        solution: LinearSolution = found.solution
-        iterations = found.iterations
-    else:
-        solution = solve_linear(tops_n[inliers], bottoms_n[inliers], height, equal_focal, focal_n)
+    settings = RansacSettings(
+        inlier_px=default_inlier_px(image_size) if inlier_px is None else inlier_px,
+        height_tolerance=height_tolerance,
+        max_iterations=max_iterations,
+    )
+    use_ransac = robust is None or robust
+    inliers, solution, iterations = _consensus(
+        tops_n, bottoms_n, usable, height, equal_focal, focal_n, frame.scale_px, settings, use_ransac, seed
+    )
+    distortion_k = 0.0
+    if distortion:
+        # k from the people the pinhole model already accepts (outliers would bend it),
+        # then the whole pipeline again on undistorted points.
+        distortion_k = estimate_division_k(tops_n[inliers], bottoms_n[inliers], height).k
+        if distortion_k != 0.0:
+            tops_n, bottoms_n = undistort(tops_n, distortion_k), undistort(bottoms_n, distortion_k)
+            usable &= np.all(np.isfinite(tops_n), axis=1) & np.all(np.isfinite(bottoms_n), axis=1)
+            inliers, solution, iterations = _consensus(
+                tops_n, bottoms_n, usable, height, equal_focal, focal_n, frame.scale_px, settings, use_ransac, seed
+            )
     if inliers.sum() < minimal_size(equal_focal, focal_n is not None):
         raise CalibrationError("too few people agree on one camera")
     optimise = refine is None or refine
@@ -141,17 +148,29 @@ def calibrate(
             tops_n[inliers], bottoms_n[inliers], solution.focal_n, solution.normal, solution.rho_m, height
         )
         fit = fit_camera(
-            tops_n[inliers], bottoms_n[inliers], solution, start_heights, height, height_std, noise_n,
-            equal_focal, focal_n, optimise=optimise,
+            tops_n[inliers],
+            bottoms_n[inliers],
+            solution,
+            start_heights,
+            height,
+            height_std,
+            noise_n,
+            equal_focal,
+            focal_n,
+            optimise=optimise,
         )
         if optimise and robust is not False:
             fit, inliers = _reject_misfits(fit, tops_n, bottoms_n, inliers, height, height_std, equal_focal, focal_n)
         solution = fit.solution
     cal = _finish(frame, tops_n, bottoms_n, inliers, solution, fit if optimise else None, height, iterations)
+    cal = replace(cal, distortion_k=distortion_k)
     if fit is not None and uncertainty:
         cov = canonical_covariance(fit.camera, fit.theta, fit.covariance, frame.scale_px)
-        cal = replace(cal, uncertainty=summarise(cov, fit.noise_n * frame.scale_px),
-                      reprojection_rms_px=fit.rms_residual * frame.scale_px)
+        cal = replace(
+            cal,
+            uncertainty=summarise(cov, fit.noise_n * frame.scale_px),
+            reprojection_rms_px=fit.rms_residual * frame.scale_px,
+        )
     check_plausible(cal, minimal_size(equal_focal, focal_n is not None))
     return cal
 
@@ -199,12 +218,49 @@ def _reject_misfits(
         return fit, inliers
     subset = np.flatnonzero(inliers)[keep]
     refit = fit_camera(
-        tops_n[subset], bottoms_n[subset], fit.solution, fit.heights_m[keep], height, height_std, fit.noise_n,
-        equal_focal, focal_n,
+        tops_n[subset],
+        bottoms_n[subset],
+        fit.solution,
+        fit.heights_m[keep],
+        height,
+        height_std,
+        fit.noise_n,
+        equal_focal,
+        focal_n,
     )
     narrowed = np.zeros_like(inliers)
     narrowed[subset] = True
     return refit, narrowed
+
+
+def _consensus(
+    tops_n: FloatArray,
+    bottoms_n: FloatArray,
+    usable: FloatArray,
+    height: float,
+    equal_focal: bool,
+    focal_n: tuple[float, float] | None,
+    scale_px: float,
+    settings: RansacSettings,
+    use_ransac: bool,
+    seed: int | None,
+) -> tuple[FloatArray, LinearSolution, int]:
+    """(inlier mask over all people, linear solution, RANSAC draws) for the usable people."""
+    inliers = usable.copy()
+    if not use_ransac:
+        return inliers, solve_linear(tops_n[usable], bottoms_n[usable], height, equal_focal, focal_n), 0
+    found = ransac(
+        tops_n[usable],
+        bottoms_n[usable],
+        height,
+        equal_focal,
+        focal_n,
+        scale_px,
+        settings,
+        np.random.default_rng(seed),
+    )
+    inliers[usable] = found.inliers
+    return inliers, found.solution, found.iterations
 
 
 def estimate_noise_n(tops_n: FloatArray, bottoms_n: FloatArray, solution: LinearSolution) -> float:
@@ -213,8 +269,9 @@ def estimate_noise_n(tops_n: FloatArray, bottoms_n: FloatArray, solution: Linear
     A Sampson distance is the noise projected on one direction, so its square is
     sigma^2 chi^2_1 distributed; the median (0.455 sigma^2) keeps stray outliers out.
     """
-    v = np.array([solution.normal[0] * solution.focal_n[0], solution.normal[1] * solution.focal_n[1],
-                  solution.normal[2]])
+    v = np.array(
+        [solution.normal[0] * solution.focal_n[0], solution.normal[1] * solution.focal_n[1], solution.normal[2]]
+    )
     d = sampson_distances(homogeneous(tops_n), homogeneous(bottoms_n), v)
     dof = max(len(d) - 2, 1)
     return float(np.sqrt(np.median(d * d) / 0.455 * len(d) / dof))

@@ -43,7 +43,9 @@ class Calibration:
     heights: FloatArray
     inliers: FloatArray
     uncertainty: Uncertainty | None = None
-    distortion_k: float = 0.0  # division model on pixel radius: x_u = c + (x_d - c) / (1 + k r^2)
+    # Division model u = u_d / (1 + k |u_d|^2) on frame-normalised coordinates
+    # u = (x - c) / ((W + H) / 4); see service.geometry.distortion.
+    distortion_k: float = 0.0
     refined: bool = False
     ransac_iterations: int = 0
     reprojection_rms_px: float = float("nan")

@@ -126,8 +126,13 @@ def focal_weights(bottoms_h: FloatArray, lam_b: FloatArray, v: FloatArray, equal
 
 
 def normal_and_rho(
-    tops_h: FloatArray, bottoms_h: FloatArray, v: FloatArray, lam_t: FloatArray, lam_b: FloatArray,
-    focal_n: FloatArray, height_m: float,
+    tops_h: FloatArray,
+    bottoms_h: FloatArray,
+    v: FloatArray,
+    lam_t: FloatArray,
+    lam_b: FloatArray,
+    focal_n: FloatArray,
+    height_m: float,
 ) -> tuple[FloatArray, FloatArray]:
     """Unit up-normal (..., 3) and rho (...) once the focal lengths are known.
 

@@ -36,7 +36,11 @@ class Measurement:
 
 
 def _positions(
-    c: FloatArray, cal: Calibration, tops_px: FloatArray, bottoms_px: FloatArray, from_ankles: FloatArray,
+    c: FloatArray,
+    cal: Calibration,
+    tops_px: FloatArray,
+    bottoms_px: FloatArray,
+    from_ankles: FloatArray,
     height_m: float,
 ) -> FloatArray:
     fx, fy, normal, rho = canonical_camera(c, cal.normal)

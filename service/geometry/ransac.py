@@ -205,8 +205,14 @@ def ransac(
                 raise  # the winning consensus set itself is degenerate: no trustworthy camera
             break
         costs = score_hypotheses(
-            tops_n, bottoms_n, np.array([refit.focal_n]), refit.normal[None], np.array([refit.rho_m]),
-            height_m, scale_px, settings,
+            tops_n,
+            bottoms_n,
+            np.array([refit.focal_n]),
+            refit.normal[None],
+            np.array([refit.rho_m]),
+            height_m,
+            scale_px,
+            settings,
         )[0]
         refit_inliers = costs < 1.0
         if refit_inliers.sum() < m:

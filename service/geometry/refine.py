@@ -252,8 +252,16 @@ def fit_camera(
         lower, upper = problem.camera_bounds()
         theta = np.clip(theta, lower + 1e-9, upper - 1e-9)
         theta = least_squares(
-            residuals, theta, jac=jacobian, bounds=(lower, upper), method="trf", x_scale="jac",
-            ftol=1e-12, xtol=1e-12, gtol=1e-12, max_nfev=max_evaluations,
+            residuals,
+            theta,
+            jac=jacobian,
+            bounds=(lower, upper),
+            method="trf",
+            x_scale="jac",
+            ftol=1e-12,
+            xtol=1e-12,
+            gtol=1e-12,
+            max_nfev=max_evaluations,
         ).x
         persons = problem.solve_persons(theta, cache.get(theta.tobytes(), persons))
     focal, normal, rho = camera.unpack(theta)

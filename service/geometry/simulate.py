@@ -102,6 +102,16 @@ def project(
     return np.stack((fx * xn + cx, fy * yn + cy), -1)
 
 
+def _distortion_monotonic(points: FloatArray, k: tuple[float, float]) -> FloatArray:
+    """Where the polynomial lens map is still increasing in radius (d r_d / d r > 0).
+
+    Past that turning point (k1 < 0) the polynomial folds points from outside the
+    field of view back into the image, which no real lens does.
+    """
+    r2 = (points[..., 0] ** 2 + points[..., 1] ** 2) / points[..., 2] ** 2
+    return 1.0 + 3.0 * k[0] * r2 + 5.0 * k[1] * r2 * r2 > 0.0
+
+
 def _uniform(rng: np.random.Generator, bounds: tuple[float, float]) -> float:
     return float(rng.uniform(bounds[0], bounds[1])) if bounds[1] > bounds[0] else float(bounds[0])
 
@@ -164,6 +174,7 @@ def _place_visible_people(
         h = heights[len(chosen) % config.n_people]
         x_t = x_b + h * normal
         ok = keep & (x_b[:, 2] > 0.3) & (x_t[:, 2] > 0.3)
+        ok &= _distortion_monotonic(x_b, config.distortion_k) & _distortion_monotonic(x_t, config.distortion_k)
         for pts in (x_b, x_t):
             px = project(pts, fx, fy, width / 2.0, height / 2.0, config.distortion_k)
             ok &= (px[:, 0] >= 0) & (px[:, 0] <= width) & (px[:, 1] >= 0) & (px[:, 1] <= height)
@@ -174,7 +185,8 @@ def _place_visible_people(
                 break
             top = candidate + heights[i] * normal
             px = project(np.stack((candidate, top)), fx, fy, width / 2.0, height / 2.0, config.distortion_k)
-            if top[2] > 0.3 and np.all((px >= 0) & (px <= (width, height))):
+            visible = top[2] > 0.3 and bool(_distortion_monotonic(top[None], config.distortion_k)[0])
+            if visible and np.all((px >= 0) & (px <= (width, height))):
                 chosen.append(candidate)
         if len(chosen) == config.n_people:
             return np.array(chosen), heights

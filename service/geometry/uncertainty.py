@@ -36,8 +36,9 @@ def canonical_covariance(camera: CameraModel, theta: FloatArray, cov_theta: Floa
     def to_canonical(t: FloatArray) -> FloatArray:
         focal, n, rho = camera.unpack(t)
         # Inverse of canonical_camera's map: tangent offsets of n around normal_hat.
-        return np.array([focal[0] * scale_px, focal[1] * scale_px, (n @ e1) / (n @ normal_hat),
-                         (n @ e2) / (n @ normal_hat), rho])
+        return np.array(
+            [focal[0] * scale_px, focal[1] * scale_px, (n @ e1) / (n @ normal_hat), (n @ e2) / (n @ normal_hat), rho]
+        )
 
     base = to_canonical(theta)
     jac = np.empty((5, len(theta)))

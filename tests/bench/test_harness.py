@@ -71,8 +71,20 @@ def test_cli_prints_tables_and_writes_markdown(tmp_path: Path) -> None:
     markdown = tmp_path / "docs" / "geometry.md"
     result = CliRunner().invoke(
         app,
-        ["bench", "geometry", "--trials", "3", "--workers", "1", "--only", "surveillance,timing", "--repeats", "1",
-         "--markdown", str(markdown)],
+        [
+            "bench",
+            "geometry",
+            "--trials",
+            "3",
+            "--workers",
+            "1",
+            "--only",
+            "surveillance,timing",
+            "--repeats",
+            "1",
+            "--markdown",
+            str(markdown),
+        ],
     )
     assert result.exit_code == 0, result.output
     for text in ("posemetry geometry benchmark", "CPUs", "Surveillance preset", "Timing", "median ms", "p90 ms"):

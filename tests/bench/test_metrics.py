@@ -29,10 +29,18 @@ def exact_calibration(scene: Scene, **changes: object) -> Calibration:
     """A calibration that reproduces the scene's truth, with some fields overridden."""
     n = len(scene.points_bottom)
     fields: dict[str, object] = {
-        "fx": scene.fx, "fy": scene.fy, "cx": scene.cx, "cy": scene.cy, "normal": scene.normal.copy(),
-        "rho": scene.rho, "image_size": scene.image_size, "height_m": 1.7,
-        "points_bottom": scene.points_bottom.copy(), "points_top": scene.points_top.copy(),
-        "heights": scene.heights.copy(), "inliers": np.ones(n, dtype=bool),
+        "fx": scene.fx,
+        "fy": scene.fy,
+        "cx": scene.cx,
+        "cy": scene.cy,
+        "normal": scene.normal.copy(),
+        "rho": scene.rho,
+        "image_size": scene.image_size,
+        "height_m": 1.7,
+        "points_bottom": scene.points_bottom.copy(),
+        "points_top": scene.points_top.copy(),
+        "heights": scene.heights.copy(),
+        "inliers": np.ones(n, dtype=bool),
     }
     fields.update(changes)
     return Calibration(**fields)  # type: ignore[arg-type]
@@ -131,9 +139,22 @@ def test_calibration_error_is_a_failure_and_other_exceptions_are_flagged(scene: 
 
 
 def test_summary_averages_successful_trials_only() -> None:
-    ok = [TrialResult({"fx_pct": v, "fy_pct": v, "normal_deg": v, "rho_pct": v, "points_pct": v, "dist_pct": v,
-                       "dist_m": v, "inliers_placed_pct": 100.0, "outliers_placed_pct": math.nan}) for v in (1.0, 2.0,
-                                                                                                            6.0)]
+    ok = [
+        TrialResult(
+            {
+                "fx_pct": v,
+                "fy_pct": v,
+                "normal_deg": v,
+                "rho_pct": v,
+                "points_pct": v,
+                "dist_pct": v,
+                "dist_m": v,
+                "inliers_placed_pct": 100.0,
+                "outliers_placed_pct": math.nan,
+            }
+        )
+        for v in (1.0, 2.0, 6.0)
+    ]
     summary = summarise([*ok, TrialResult.failure("refused")])
     assert summary.fail_pct == 25.0
     assert summary.mean["fx_pct"] == pytest.approx(3.0)

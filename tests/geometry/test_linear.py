@@ -22,14 +22,16 @@ FOVS = [45.0, 60.0, 90.0, 120.0]
 @pytest.mark.parametrize("equal_focal", [False, True])
 def test_noise_free_minimal_scenes_are_recovered_exactly(size: tuple[int, int], fov: float, equal_focal: bool) -> None:
     config = SceneConfig.paper(
-        image_size=size, vfov_deg=(fov, fov), n_people=2 if equal_focal else 3, noise_px=0.0,
+        image_size=size,
+        vfov_deg=(fov, fov),
+        n_people=2 if equal_focal else 3,
+        noise_px=0.0,
         square_pixels=equal_focal,
     )
     rng = np.random.default_rng(int(fov) + size[0])
     for _ in range(20):
         s = draw_scene(config, rng)
-        cal = calibrate(s.tops_px, s.bottoms_px, s.image_size, 1.7, equal_focal=equal_focal, robust=False,
-                        refine=False)
+        cal = calibrate(s.tops_px, s.bottoms_px, s.image_size, 1.7, equal_focal=equal_focal, robust=False, refine=False)
         assert cal.fx == pytest.approx(s.fx, rel=1e-8)
         assert cal.fy == pytest.approx(s.fy, rel=1e-8)
         assert angle_deg(cal.normal, s.normal) < 1e-6

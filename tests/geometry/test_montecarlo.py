@@ -24,8 +24,13 @@ def test_paper_protocol_noise_and_height_spread() -> None:
         d, t = pairwise_distances(cal.points_bottom), pairwise_distances(s.points_bottom)
         iu = np.triu_indices(len(t), 1)
         rows.append(
-            (abs(cal.fx / s.fx - 1), abs(cal.fy / s.fy - 1), angle_deg(cal.normal, s.normal), abs(cal.rho / s.rho - 1),
-             np.nanmean(np.abs(d[iu] - t[iu]) / t[iu]))
+            (
+                abs(cal.fx / s.fx - 1),
+                abs(cal.fy / s.fy - 1),
+                angle_deg(cal.normal, s.normal),
+                abs(cal.rho / s.rho - 1),
+                np.nanmean(np.abs(d[iu] - t[iu]) / t[iu]),
+            )
         )
     fx, fy, normal, rho, dist = np.mean(rows, axis=0)
     # The paper's Table 2 (height std 0.1 m) reports fx 8.2 %, fy 7.5 %, N 1.35 deg, rho 3.5 %.

@@ -13,8 +13,10 @@ from service.geometry.reconstruct import pairwise_distances
 from .conftest import angle_deg, scene
 
 scenes = st.builds(
-    lambda seed, n, noise, square: (scene(seed, n_people=n, noise_px=noise, height_std_m=0.05,
-                                          square_pixels=square), square),
+    lambda seed, n, noise, square: (
+        scene(seed, n_people=n, noise_px=noise, height_std_m=0.05, square_pixels=square),
+        square,
+    ),
     seed=st.integers(0, 10_000),
     n=st.integers(6, 40),
     noise=st.sampled_from([0.0, 0.3, 1.0]),
@@ -67,8 +69,9 @@ def test_scaling_the_image_scales_f_and_nothing_else(drawn, s_factor: float) -> 
     assert b.rho == pytest.approx(a.rho, rel=1e-6)
     assert angle_deg(a.normal, b.normal) < 1e-5
     placed = a.inliers
-    np.testing.assert_allclose(pairwise_distances(b.points_bottom[placed]), pairwise_distances(a.points_bottom[placed]),
-                               rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(
+        pairwise_distances(b.points_bottom[placed]), pairwise_distances(a.points_bottom[placed]), rtol=1e-5, atol=1e-7
+    )
     assert b.uncertainty is not None and a.uncertainty is not None
     assert b.uncertainty.fx_px == pytest.approx(a.uncertainty.fx_px * s_factor, rel=1e-3)
 

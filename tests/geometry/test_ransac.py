@@ -31,8 +31,13 @@ def test_scoring_flags_exactly_the_corrupted_people() -> None:
     s = scene(8, noise_px=0.0, n_people=40, outlier_fraction=0.25)
     frame = ImageFrame.from_size(s.image_size)
     costs = score_hypotheses(
-        frame.normalise(s.tops_px), frame.normalise(s.bottoms_px),
-        np.array([[s.fx, s.fy]]) / frame.scale_px, s.normal[None], np.array([s.rho]), 1.7, frame.scale_px,
+        frame.normalise(s.tops_px),
+        frame.normalise(s.bottoms_px),
+        np.array([[s.fx, s.fy]]) / frame.scale_px,
+        s.normal[None],
+        np.array([s.rho]),
+        1.7,
+        frame.scale_px,
         RansacSettings(inlier_px=3.0),
     )[0]
     assert np.all(costs[~s.outliers] < 1e-12)  # perfect people cost nothing

@@ -23,7 +23,9 @@ def test_refinement_improves_distances_under_height_spread() -> None:
     linear, refined = [], []
     for seed in range(20):
         s = scene(seed, surveillance=True, n_people=60)
-        linear.append(np.nanmean(_distance_errors(calibrate(s.tops_px, s.bottoms_px, s.image_size, 1.7, refine=False), s)))
+        linear.append(
+            np.nanmean(_distance_errors(calibrate(s.tops_px, s.bottoms_px, s.image_size, 1.7, refine=False), s))
+        )
         refined.append(np.nanmean(_distance_errors(calibrate(s.tops_px, s.bottoms_px, s.image_size, 1.7), s)))
     assert np.mean(refined) < np.mean(linear)
 
