@@ -12,17 +12,12 @@ from .distortion import estimate_division_k, undistort
 from .errors import CalibrationError
 from .frame import FloatArray, ImageFrame, homogeneous
 from .linear import LinearSolution, sampson_distances, solve_linear
+from .priors import DEFAULT_HEIGHT_M, DEFAULT_HEIGHT_STD_M
 from .ransac import RansacSettings, minimal_size, ransac
 from .reconstruct import intersect_plane, place_people, rays
 from .refine import Refinement, fit_camera
 from .uncertainty import canonical_covariance, summarise
 
-# Ankle-centre to shoulder-centre height of an average adult (metres): shoulder
-# (acromion) height ~0.82 x stature minus ankle height ~0.07 m, for a mixed adult
-# population of mean stature ~1.69 m. The paper's simulations use 1.7.
-DEFAULT_HEIGHT_M = 1.32
-# Spread of that height across adults (metres): the prior's std in the refinement.
-DEFAULT_HEIGHT_STD_M = 0.08
 # Floor of the keypoint noise estimate, as a fraction of the image diagonal
 # (0.04 px at 1080p). No pose model is better than this; it keeps the
 # likelihood well conditioned on perfect synthetic input. Relative, so that

@@ -52,7 +52,7 @@ from scipy.optimize import minimize_scalar
 
 from .errors import CalibrationError
 from .frame import FloatArray, homogeneous
-from .linear import RANK_TOL, LinearSolution, solve_linear
+from .linear import RANK_TOL
 
 # |k| r_max^2 stays below this: at -1 the model maps the outermost points to
 # infinity, at +1 it stops being monotone in the radius (two radii, one image).
@@ -296,12 +296,3 @@ def _polish(tops: FloatArray, bottoms: FloatArray, grid: FloatArray, cost: Float
         options={"xatol": 1e-14 * step},
     )
     return float(found.x) if found.fun <= cost[i] else float(grid[i])
-
-
-def solve_linear_with_distortion(
-    tops_n: ArrayLike, bottoms_n: ArrayLike, height_m: float, equal_focal: bool = True, **estimate_options: float
-) -> tuple[LinearSolution, DivisionEstimate]:
-    """Estimate k, undistort the points and run the pinhole linear solver on them."""
-    estimate = estimate_division_k(tops_n, bottoms_n, height_m, **estimate_options)
-    tops_u, bottoms_u = undistort(tops_n, estimate.k), undistort(bottoms_n, estimate.k)
-    return solve_linear(tops_u, bottoms_u, height_m, equal_focal), estimate

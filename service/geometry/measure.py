@@ -17,6 +17,7 @@ from numpy.typing import ArrayLike
 
 from .calibration import Calibration
 from .frame import FloatArray
+from .priors import DEFAULT_HEIGHT_STD_M
 from .reconstruct import intersect_plane, pairwise_distances
 from .uncertainty import canonical_camera
 
@@ -68,7 +69,7 @@ def measure(
     tops: ArrayLike,
     bottoms: ArrayLike,
     noise_px: float | None = None,
-    height_std_m: float = 0.08,
+    height_std_m: float = DEFAULT_HEIGHT_STD_M,
 ) -> Measurement:
     """Place people and measure every pair. Rows of NaN mark keypoints that were not seen.
 

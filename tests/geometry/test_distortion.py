@@ -7,6 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from service.geometry import CalibrationError, calibrate, measure
 from service.geometry.distortion import (
     collinearity_roots,
     distort,
@@ -14,12 +15,9 @@ from service.geometry.distortion import (
     paper_pencil,
     paper_roots,
     sampson_cost,
-    solve_linear_with_distortion,
     undistort,
 )
-from service.geometry.errors import CalibrationError
 from service.geometry.frame import FloatArray, ImageFrame
-from service.geometry.linear import solve_linear
 from service.geometry.simulate import Scene, SceneConfig, draw_scene
 
 from .conftest import angle_deg
@@ -39,13 +37,6 @@ def division_scene(
     tops = distort(frame.normalise(s.tops_px), k) + rng.normal(0.0, noise_px / frame.scale_px, s.tops_px.shape)
     bottoms = distort(frame.normalise(s.bottoms_px), k) + rng.normal(0.0, noise_px / frame.scale_px, s.tops_px.shape)
     return s, frame, tops, bottoms
-
-
-def polynomial_folds(s: Scene) -> bool:
-    """Whether the OpenCV polynomial is used past its turning point, where it folds outer points back inwards."""
-    points = np.concatenate((s.points_top, s.points_bottom))
-    r2 = np.sum((points[:, :2] / points[:, 2:]) ** 2, 1)
-    return bool(np.any(1.0 + 3.0 * s.distortion_k[0] * r2 <= 0.0))
 
 
 @given(
@@ -93,12 +84,28 @@ def test_corrected_paper_pencil_has_the_true_k_and_the_printed_one_does_not(k: f
 def test_noise_free_division_scenes_are_recovered_exactly(k: float, equal_focal: bool) -> None:
     for seed in range(5):
         s, frame, tops, bottoms = division_scene(seed, k, square_pixels=equal_focal)
-        solution, estimate = solve_linear_with_distortion(tops, bottoms, HEIGHT_M, equal_focal)
-        assert estimate.k == pytest.approx(k, abs=1e-8)
-        assert solution.focal_n[0] * frame.scale_px == pytest.approx(s.fx, rel=1e-7)
-        assert solution.focal_n[1] * frame.scale_px == pytest.approx(s.fy, rel=1e-7)
-        assert angle_deg(solution.normal, s.normal) < 1e-6
-        assert solution.rho_m == pytest.approx(s.rho, rel=1e-7)
+        cal = calibrate(
+            frame.to_pixels(tops),
+            frame.to_pixels(bottoms),
+            s.image_size,
+            HEIGHT_M,
+            equal_focal=equal_focal,
+            robust=False,
+            refine=False,
+            distortion=True,
+        )
+        assert cal.distortion_k == pytest.approx(k, abs=1e-8)
+        assert cal.fx == pytest.approx(s.fx, rel=1e-7)
+        assert cal.fy == pytest.approx(s.fy, rel=1e-7)
+        assert angle_deg(cal.normal, s.normal) < 1e-6
+        assert cal.rho == pytest.approx(s.rho, rel=1e-7)
+        # Placement undoes the distortion too.
+        np.testing.assert_allclose(
+            measure(cal, frame.to_pixels(tops), frame.to_pixels(bottoms)).points_bottom,
+            s.points_bottom,
+            rtol=0,
+            atol=1e-7 * s.rho,
+        )
 
 
 def test_undistorted_scene_gives_zero_k() -> None:
@@ -168,15 +175,12 @@ def test_correction_beats_plain_solve_on_the_opencv_polynomial_model(k1: float) 
     plain, corrected = [], []
     while len(plain) < 20:
         s = draw_scene(config, rng)
-        if polynomial_folds(s):
-            continue
-        frame = ImageFrame.from_size(s.image_size)
-        tops, bottoms = frame.normalise(s.tops_px), frame.normalise(s.bottoms_px)
-        for errors, solve in ((plain, solve_linear), (corrected, lambda *a: solve_linear_with_distortion(*a)[0])):
+        for errors, distortion in ((plain, False), (corrected, True)):
             try:
-                solution = solve(tops, bottoms, HEIGHT_M, True)
-                focal_error = abs(solution.focal_n[0] * frame.scale_px / s.fx - 1.0)
-                errors.append((focal_error, angle_deg(solution.normal, s.normal)))
+                cal = calibrate(
+                    s.tops_px, s.bottoms_px, s.image_size, HEIGHT_M, robust=False, refine=False, distortion=distortion
+                )
+                errors.append((abs(cal.fx / s.fx - 1.0), angle_deg(cal.normal, s.normal)))
             except CalibrationError:
                 errors.append((np.inf, np.inf))
     plain_median, corrected_median = np.median(plain, 0), np.median(corrected, 0)
