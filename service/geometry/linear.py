@@ -24,6 +24,7 @@ import numpy as np
 
 from .errors import CalibrationError
 from .frame import FloatArray, homogeneous
+from .vec import cross, dot
 
 # Relative size below which a singular value or determinant counts as zero.
 RANK_TOL = 1e-10
@@ -40,7 +41,7 @@ class LinearSolution:
 
 def segment_lines(tops_h: FloatArray, bottoms_h: FloatArray) -> FloatArray:
     """Homogeneous image line through each person's two points."""
-    return np.cross(tops_h, bottoms_h)
+    return cross(tops_h, bottoms_h)
 
 
 def sampson_distances(tops_h: FloatArray, bottoms_h: FloatArray, v: FloatArray) -> FloatArray:
@@ -50,10 +51,10 @@ def sampson_distances(tops_h: FloatArray, bottoms_h: FloatArray, v: FloatArray) 
     collinear with v: a height-independent residual, so it measures keypoint
     noise alone. v broadcasts against the points: (3,) or (M, 1, 3).
     """
-    e = np.sum(segment_lines(tops_h, bottoms_h) * v, -1)
-    g_top = np.cross(bottoms_h, v)[..., :2]
-    g_bottom = np.cross(v, tops_h)[..., :2]
-    denom = np.sqrt(np.sum(g_top**2, -1) + np.sum(g_bottom**2, -1))
+    e = dot(segment_lines(tops_h, bottoms_h), v)
+    g_top = cross(bottoms_h, v)
+    g_bottom = cross(v, tops_h)
+    denom = np.sqrt(g_top[..., 0] ** 2 + g_top[..., 1] ** 2 + g_bottom[..., 0] ** 2 + g_bottom[..., 1] ** 2)
     return e / np.maximum(denom, 1e-300)
 
 
@@ -65,26 +66,23 @@ def vanishing_point(tops_h: FloatArray, bottoms_h: FloatArray, irls_iterations: 
     matters when v is close to the image (steep views).
     """
     lines = segment_lines(tops_h, bottoms_h)
-    weights = 1.0 / np.sum(lines**2, 1)
-    v = _smallest_eigenvector(lines, weights)
+    weights = 1.0 / dot(lines, lines)
     for _ in range(irls_iterations):
-        g_top = np.cross(bottoms_h, v)[:, :2]
-        g_bottom = np.cross(v, tops_h)[:, :2]
-        denom = np.sum(g_top**2, 1) + np.sum(g_bottom**2, 1)
+        # The 3x3 normal equations are cheap and accurate enough for the weights...
+        v = np.linalg.eigh((lines * weights[:, None]).T @ lines)[1][:, 0]
+        g_top = cross(bottoms_h, v)
+        g_bottom = cross(v, tops_h)
+        denom = g_top[:, 0] ** 2 + g_top[:, 1] ** 2 + g_bottom[:, 0] ** 2 + g_bottom[:, 1] ** 2
         weights = 1.0 / np.maximum(denom, 1e-12 * np.max(denom))
-        v = _smallest_eigenvector(lines, weights)
-    return v
-
-
-def _smallest_eigenvector(lines: FloatArray, weights: FloatArray) -> FloatArray:
-    m = (lines * weights[:, None]).T @ lines
-    eigval, eigvec = np.linalg.eigh(m)
-    if eigval[1] <= RANK_TOL * max(eigval[2], 1e-300):
+    # ... but the answer comes from an SVD of the rows: the normal equations square
+    # the condition number and cost digits on exact, nearly degenerate input.
+    _, sv, vt = np.linalg.svd(lines * np.sqrt(weights)[:, None], full_matrices=len(lines) < 3)
+    if len(sv) < 2 or sv[1] <= np.sqrt(RANK_TOL) * sv[0]:
         raise CalibrationError(
             "the segments do not determine a vanishing point: fewer than two distinct lines "
             "(e.g. every person on one image line)"
         )
-    return eigvec[:, 0]
+    return vt[2]
 
 
 def scaled_depths(
@@ -94,11 +92,11 @@ def scaled_depths(
 
     Shapes (..., n, 3) for the points and (..., 1, 3) for v.
     """
-    tt = np.sum(tops_h * tops_h, -1)
-    bb = np.sum(bottoms_h * bottoms_h, -1)
-    tb = np.sum(tops_h * bottoms_h, -1)
-    tv = np.sum(tops_h * v, -1)
-    bv = np.sum(bottoms_h * v, -1)
+    tt = dot(tops_h, tops_h)
+    bb = dot(bottoms_h, bottoms_h)
+    tb = dot(tops_h, bottoms_h)
+    tv = dot(tops_h, v)
+    bv = dot(bottoms_h, v)
     det = tt * bb - tb * tb
     with np.errstate(divide="ignore", invalid="ignore"):
         det = np.where(det > RANK_TOL * tt * bb, det, np.nan)
@@ -149,7 +147,7 @@ def normal_and_rho(
     x_b = rays_b * (lam_b / mu[..., None])[..., None]
     x_t = rays_t * (lam_t / mu[..., None])[..., None]
     centroid = 0.5 * (x_b.mean(-2) + x_t.mean(-2))
-    rho = 0.5 * height_m - np.sum(normal * centroid, -1)
+    rho = 0.5 * height_m - dot(normal, centroid)
     return normal, rho
 
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from .frame import FloatArray
+from .vec import dot
 
 
 def rays(points_n: FloatArray, focal_n: tuple[float, float]) -> FloatArray:
@@ -26,7 +27,7 @@ def intersect_plane(ray: FloatArray, normal: FloatArray, offset_m: float | Float
     A ray misses when it runs parallel to or away from the plane (normal . ray >= 0
     for a plane below the camera): e.g. a foot seen above the horizon.
     """
-    denom = np.sum(ray * normal, -1)
+    denom = dot(ray, normal)
     with np.errstate(divide="ignore", invalid="ignore"):
         t = np.where(denom < 0, -np.asarray(offset_m) / denom, np.nan)
     return ray * t[..., None]
@@ -34,10 +35,10 @@ def intersect_plane(ray: FloatArray, normal: FloatArray, offset_m: float | Float
 
 def heights_above_ground(points_bottom: FloatArray, ray_top: FloatArray, normal: FloatArray) -> FloatArray:
     """Each person's height (m): where the shoulder ray passes closest to the vertical through the ankle."""
-    nr = np.sum(ray_top * normal, -1)
-    rr = np.sum(ray_top * ray_top, -1)
-    nx = np.sum(points_bottom * normal, -1)
-    rx = np.sum(ray_top * points_bottom, -1)
+    nr = dot(ray_top, normal)
+    rr = dot(ray_top, ray_top)
+    nx = dot(points_bottom, normal)
+    rx = dot(ray_top, points_bottom)
     # minimise |X_B + t N - s r|^2 over (t, s); |N| = 1.
     det = rr - nr * nr
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -70,4 +71,4 @@ def place_people(
 def pairwise_distances(points: FloatArray) -> FloatArray:
     """(N, N) Euclidean distances in metres (NaN involving unplaced people)."""
     diff = points[:, None, :] - points[None, :, :]
-    return np.sqrt(np.sum(diff * diff, -1))
+    return np.sqrt(dot(diff, diff))
