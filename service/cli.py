@@ -1,4 +1,4 @@
-"""The `posemetry` command line: one typer app, with a sub-app per area (bench now; serve, api, worker, db later).
+"""The `posemetry` command line: one typer app, with a sub-app per area (bench, db; serve, api, worker later).
 
 Heavy imports (numpy, scipy, the geometry) happen inside the commands so that
 `posemetry --help` and unrelated commands stay fast.
@@ -21,6 +21,8 @@ app = typer.Typer(
 )
 bench_app = typer.Typer(help="Benchmarks: accuracy against the paper's protocol, and speed.", no_args_is_help=True)
 app.add_typer(bench_app, name="bench")
+db_app = typer.Typer(help="The SQL store: schema migrations.", no_args_is_help=True)
+app.add_typer(db_app, name="db")
 
 QUICK_TRIALS = 50
 DEFAULT_TRIALS = 1000
@@ -91,6 +93,44 @@ def bench_geometry(
         for line in report.unexpected_errors:
             log.print(f"[red]unexpected exception[/red] {line}", highlight=False)
         raise typer.Exit(1)
+
+
+@db_app.command("upgrade")
+def db_upgrade(
+    revision: str = typer.Argument("head", help="Alembic revision to migrate to."),
+    url: str | None = typer.Option(
+        None, help="Database URL (default: POSEMETRY_DATABASE_URL, else the SQLite file in POSEMETRY_DATA_DIR)."
+    ),
+) -> None:
+    """Create or migrate the database schema; safe to run on every start (a no-op when up to date)."""
+    from alembic.util import CommandError
+    from sqlalchemy.exc import SQLAlchemyError
+
+    from service.settings import get_settings
+    from service.store import make_engine
+    from service.store.migrate import current_revision, upgrade
+
+    settings = get_settings()
+    database_url = url or settings.database_url
+    try:
+        upgrade(database_url, revision, script_location=settings.migrations_dir)
+        engine = make_engine(database_url, busy_timeout_s=settings.database_busy_timeout_s)
+        try:
+            with engine.connect() as connection:
+                now = current_revision(connection)
+        finally:
+            engine.dispose()
+    except (SQLAlchemyError, CommandError, FileNotFoundError, ValueError) as exc:
+        Console(stderr=True).print(f"[red]db upgrade failed:[/red] {exc}", highlight=False)
+        raise typer.Exit(1) from None
+    typer.echo(f"{_display_url(database_url)} is at revision {now}")
+
+
+def _display_url(url: str) -> str:
+    """The URL with its password masked: command output ends up in logs."""
+    from sqlalchemy.engine import make_url
+
+    return make_url(url).render_as_string(hide_password=True)
 
 
 if __name__ == "__main__":

@@ -77,6 +77,12 @@ class Settings(BaseSettings):
         "evidence, so a solve stays fast with millions of people stored and is not dominated by one crowded spot.",
     )
 
+    migrations_dir: Path | None = Field(
+        default=None,
+        description="Directory of the Alembic migration scripts. Unset: `migrations/` of the source checkout "
+        "the service runs from (editable installs); set it only when running from a plain wheel install.",
+    )
+
     @field_validator("data_dir")
     @classmethod
     def _absolute_data_dir(cls, value: Path) -> Path:

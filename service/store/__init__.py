@@ -1,0 +1,20 @@
+"""The SQL store: schema (models), engines and sessions (db), operations (repository), migrations (migrate).
+
+Import the repository functions from `service.store.repository`; this package re-exports the pieces most
+callers need to open a database.
+"""
+
+from .db import make_engine, make_session_factory, normalise_url
+from .models import Base, CalibrationVersion, Camera, Frame, Observation, ViolationEvent
+
+__all__ = [
+    "Base",
+    "CalibrationVersion",
+    "Camera",
+    "Frame",
+    "Observation",
+    "ViolationEvent",
+    "make_engine",
+    "make_session_factory",
+    "normalise_url",
+]

@@ -1,0 +1,95 @@
+"""Engines and sessions for SQLite (one machine) and PostgreSQL (production), configured so both behave alike.
+
+SQLite needs the most help: foreign keys are off unless asked for on every connection (and the schema relies on
+ON DELETE CASCADE); WAL lets readers proceed while one process writes; the busy timeout makes a second writer
+wait instead of failing at once; and transactions start with BEGIN IMMEDIATE. That last one matters because the
+API and the workers are separate processes: a deferred transaction that reads and then writes fails with
+"database is locked" immediately (no waiting) when another process committed in between, whereas an immediate
+one takes the write lock up front and simply queues on the busy timeout. Python 3.11's sqlite3 driver also has
+to be told to stop managing transactions itself, or SAVEPOINTs (used for idempotent inserts) do not nest.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from sqlalchemy import Engine, create_engine, event
+from sqlalchemy.engine import URL, make_url
+from sqlalchemy.orm import Session, sessionmaker
+from sqlalchemy.pool import StaticPool
+
+POSTGRES_DRIVER = "postgresql+psycopg"
+
+
+def _json_dumps(value: Any) -> str:
+    """Strict JSON: PostgreSQL rejects NaN and Infinity, so they must fail on SQLite too rather than in production."""
+    return json.dumps(value, allow_nan=False, separators=(",", ":"))
+
+
+def normalise_url(url: str | URL) -> URL:
+    """Point plain `postgresql://` and `postgres://` URLs at psycopg 3, the only PostgreSQL driver installed."""
+    parsed = make_url(url) if isinstance(url, str) else url
+    if parsed.drivername in ("postgresql", "postgres"):
+        parsed = parsed.set(drivername=POSTGRES_DRIVER)
+    return parsed
+
+
+def is_sqlite_memory(url: URL) -> bool:
+    return url.get_backend_name() == "sqlite" and url.database in (None, "", ":memory:")
+
+
+def make_engine(url: str | URL, *, busy_timeout_s: float = 30.0, echo: bool = False) -> Engine:
+    """An engine for `url` with the per-backend settings described in the module docstring.
+
+    For a SQLite file, its directory is created, so a fresh `data_dir` works without a setup step.
+    """
+    parsed = normalise_url(url)
+    backend = parsed.get_backend_name()
+    if backend == "sqlite":
+        return _sqlite_engine(parsed, busy_timeout_s=busy_timeout_s, echo=echo)
+    if backend == "postgresql":
+        # pre-ping: a restarted or briefly unreachable database costs one failed request, not a restart.
+        return create_engine(parsed, echo=echo, pool_pre_ping=True, json_serializer=_json_dumps)
+    raise ValueError(f"unsupported database {parsed.render_as_string(hide_password=True)}: use sqlite or postgresql")
+
+
+def _sqlite_engine(url: URL, *, busy_timeout_s: float, echo: bool) -> Engine:
+    memory = is_sqlite_memory(url)
+    if not memory and url.database is not None:
+        Path(url.database).expanduser().parent.mkdir(parents=True, exist_ok=True)
+    # isolation_level=None: the driver stops issuing its own BEGINs; the "begin" hook below issues ours.
+    connect_args: dict[str, Any] = {"isolation_level": None}
+    kwargs: dict[str, Any] = {}
+    if memory:
+        # An in-memory database exists once per connection: share one connection, across threads too.
+        connect_args["check_same_thread"] = False
+        kwargs["poolclass"] = StaticPool
+    engine = create_engine(url, echo=echo, connect_args=connect_args, json_serializer=_json_dumps, **kwargs)
+    busy_timeout_ms = int(busy_timeout_s * 1000)
+
+    @event.listens_for(engine, "connect")
+    def _configure(dbapi_connection: Any, _record: Any) -> None:
+        cursor = dbapi_connection.cursor()
+        try:
+            if not memory:
+                cursor.execute("PRAGMA journal_mode=WAL")
+                # In WAL mode NORMAL never corrupts and loses nothing on a process crash; only an OS crash or
+                # power cut can lose the last commits. FULL would fsync on every frame.
+                cursor.execute("PRAGMA synchronous=NORMAL")
+            cursor.execute("PRAGMA foreign_keys=ON")
+            cursor.execute(f"PRAGMA busy_timeout={busy_timeout_ms}")
+        finally:
+            cursor.close()
+
+    @event.listens_for(engine, "begin")
+    def _begin(connection: Any) -> None:
+        connection.exec_driver_sql("BEGIN IMMEDIATE")
+
+    return engine
+
+
+def make_session_factory(engine: Engine) -> sessionmaker[Session]:
+    """Sessions whose objects stay readable after commit, so a route can commit and then serialise the result."""
+    return sessionmaker(bind=engine, expire_on_commit=False)

@@ -1,0 +1,291 @@
+"""The SQL schema: cameras, their frames and per-person observations, calibration versions and violation events.
+
+Design choices that the rest of the service relies on:
+
+- Every table that grows with traffic carries `camera_id` and cascades from `cameras`, so deleting a camera is
+  one statement and every hot query starts with an index on `camera_id`.
+- Enumerations are strings with CHECK constraints, not native enums: adding a value is then a plain migration
+  on both SQLite and PostgreSQL.
+- Timestamps are timezone-aware UTC in Python on both backends (`UTCDateTime`); SQLite stores them as naive
+  UTC text, which sorts and compares correctly because every value has the same format.
+- Observations carry a coarse grid `cell` of the ankle position and a pseudo-random `sample_key`; the index
+  (camera_id, usable, cell, sample_key) lets a calibration read a capped, spatially balanced sample with a few
+  index range scans instead of reading every stored person (see repository.sample_evidence).
+- Violation events carry `epoch_s`, whole seconds since the Unix epoch, so per-minute and per-hour counts are
+  integer arithmetic that SQLite and PostgreSQL evaluate identically.
+"""
+
+from __future__ import annotations
+
+import uuid
+from datetime import UTC, datetime
+from typing import Any
+
+from sqlalchemy import (
+    JSON,
+    BigInteger,
+    Boolean,
+    CheckConstraint,
+    DateTime,
+    Dialect,
+    Double,
+    ForeignKey,
+    Index,
+    Integer,
+    MetaData,
+    String,
+    Text,
+    TypeDecorator,
+    UniqueConstraint,
+    Uuid,
+    text,
+)
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
+
+# 6 ft, the social-distancing threshold the product was asked for. (The person height default is
+# service.geometry.DEFAULT_HEIGHT_M; it is not imported here because importing the geometry pulls in scipy,
+# which `posemetry db upgrade` and the store should not pay for.)
+DEFAULT_DISTANCE_THRESHOLD_M = 1.8288
+CAMERA_ID_MAX_LENGTH = 128
+CLIENT_FRAME_ID_MAX_LENGTH = 128
+REASON_MAX_LENGTH = 200
+
+# The sampling grid over the image: cell = row * GRID_COLS + col of the ankle centre. Part of the stored data's
+# meaning (observations keep their cell), so changing it needs a migration that recomputes `cell`.
+GRID_COLS = 8
+GRID_ROWS = 8
+GRID_CELLS = GRID_COLS * GRID_ROWS
+# sample_key is uniform in [0, SAMPLE_KEY_SPACE): 31 bits fit a signed INTEGER on every backend.
+SAMPLE_KEY_SPACE = 2**31
+
+FRAME_SOURCES = ("keypoints", "image")
+FRAME_STATUSES = ("pending", "done", "failed")
+CALIBRATION_STATUSES = ("ok", "failed")
+
+NAMING_CONVENTION = {
+    "ix": "ix_%(table_name)s_%(column_0_N_name)s",
+    "uq": "uq_%(table_name)s_%(column_0_N_name)s",
+    "ck": "ck_%(table_name)s_%(constraint_name)s",
+    "fk": "fk_%(table_name)s_%(column_0_name)s_%(referred_table_name)s",
+    "pk": "pk_%(table_name)s",
+}
+
+# An auto-incrementing 64-bit key: SQLite only auto-increments a column declared exactly INTEGER PRIMARY KEY
+# (which is 64-bit there anyway), PostgreSQL needs BIGINT for tables that outgrow 2^31 rows.
+BigIntegerKey = BigInteger().with_variant(Integer(), "sqlite")
+
+
+def utc_now() -> datetime:
+    """The current time as an aware UTC datetime, the only kind the store accepts."""
+    return datetime.now(UTC)
+
+
+def _in(values: tuple[str, ...]) -> str:
+    return "(" + ", ".join(f"'{value}'" for value in values) + ")"
+
+
+class UTCDateTime(TypeDecorator[datetime]):
+    """Aware UTC datetimes in and out on every backend; naive datetimes are refused, not guessed at.
+
+    PostgreSQL stores `timestamptz`; SQLite has no time zones, so values are stored as naive UTC and the zone is
+    put back on the way out. Without this, the same query returns aware datetimes on one backend and naive ones
+    on the other, and comparisons between them raise.
+    """
+
+    impl = DateTime(timezone=True)
+    cache_ok = True
+
+    def process_bind_param(self, value: datetime | None, dialect: Dialect) -> datetime | None:
+        if value is None:
+            return None
+        if value.tzinfo is None or value.utcoffset() is None:
+            raise ValueError(f"naive datetime {value!r}: the store needs timezone-aware datetimes")
+        value = value.astimezone(UTC)
+        return value.replace(tzinfo=None) if dialect.name == "sqlite" else value
+
+    def process_result_value(self, value: datetime | None, dialect: Dialect) -> datetime | None:
+        if value is None:
+            return None
+        return value.replace(tzinfo=UTC) if value.tzinfo is None else value.astimezone(UTC)
+
+
+class Base(DeclarativeBase):
+    """Declarative base with a naming convention, so constraint names are stable across backends and migrations."""
+
+    metadata = MetaData(naming_convention=NAMING_CONVENTION)
+    type_annotation_map = {  # noqa: RUF012 - SQLAlchemy reads this class attribute by name
+        datetime: UTCDateTime(),
+        float: Double(),
+        str: Text(),
+        uuid.UUID: Uuid(),
+    }
+
+
+class Camera(Base):
+    """A fixed camera as configured by its client, with the evidence counters that drive re-calibration."""
+
+    __tablename__ = "cameras"
+
+    id: Mapped[str] = mapped_column(String(CAMERA_ID_MAX_LENGTH), primary_key=True)
+    image_width_px: Mapped[int] = mapped_column(Integer)
+    image_height_px: Mapped[int] = mapped_column(Integer)
+    person_height_m: Mapped[float]
+    equal_focal: Mapped[bool] = mapped_column(Boolean, default=True)
+    distance_threshold_m: Mapped[float] = mapped_column(default=DEFAULT_DISTANCE_THRESHOLD_M)
+    known_focal_px: Mapped[float | None]
+    # Maintained on insert, so "is a solve due?" never has to count millions of rows.
+    usable_evidence_count: Mapped[int] = mapped_column(BigInteger, default=0, server_default=text("0"))
+    evidence_at_last_solve: Mapped[int] = mapped_column(BigInteger, default=0, server_default=text("0"))
+    created_at: Mapped[datetime] = mapped_column(default=utc_now)
+    updated_at: Mapped[datetime] = mapped_column(default=utc_now)
+
+    __table_args__ = (
+        CheckConstraint("image_width_px > 0 AND image_height_px > 0", name="image_size_positive"),
+        CheckConstraint("person_height_m > 0", name="person_height_positive"),
+        CheckConstraint("distance_threshold_m > 0", name="distance_threshold_positive"),
+        CheckConstraint("known_focal_px IS NULL OR known_focal_px > 0", name="known_focal_positive"),
+    )
+
+
+class Frame(Base):
+    """One posted frame: the unit of idempotency (client frame id), of work (status) and of results."""
+
+    __tablename__ = "frames"
+
+    id: Mapped[uuid.UUID] = mapped_column(primary_key=True, default=uuid.uuid4)
+    camera_id: Mapped[str] = mapped_column(String(CAMERA_ID_MAX_LENGTH), ForeignKey("cameras.id", ondelete="CASCADE"))
+    # NULLs are distinct in the unique constraint on both backends, so frames without a client id never clash.
+    client_frame_id: Mapped[str | None] = mapped_column(String(CLIENT_FRAME_ID_MAX_LENGTH))
+    timestamp: Mapped[datetime]
+    received_at: Mapped[datetime] = mapped_column(default=utc_now)
+    source: Mapped[str] = mapped_column(String(16))
+    status: Mapped[str] = mapped_column(String(16), default="pending")
+    people: Mapped[int] = mapped_column(Integer, default=0)
+    result: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    calibration_version: Mapped[int | None] = mapped_column(Integer)
+    error: Mapped[str | None]
+    processed_at: Mapped[datetime | None]
+
+    __table_args__ = (
+        UniqueConstraint("camera_id", "client_frame_id"),
+        # Pending work per camera (and across cameras when workers restart), oldest first.
+        Index("ix_frames_status_camera_id_received_at", "status", "camera_id", "received_at"),
+        CheckConstraint(f"source IN {_in(FRAME_SOURCES)}", name="source"),
+        CheckConstraint(f"status IN {_in(FRAME_STATUSES)}", name="status"),
+        CheckConstraint("people >= 0", name="people_non_negative"),
+    )
+
+
+class Observation(Base):
+    """One person in one frame: the two points calibration and measurement use, and the raw keypoints."""
+
+    __tablename__ = "observations"
+
+    id: Mapped[int] = mapped_column(BigIntegerKey, primary_key=True, autoincrement=True)
+    camera_id: Mapped[str] = mapped_column(String(CAMERA_ID_MAX_LENGTH), ForeignKey("cameras.id", ondelete="CASCADE"))
+    frame_id: Mapped[uuid.UUID] = mapped_column(ForeignKey("frames.id", ondelete="CASCADE"))
+    person_index: Mapped[int] = mapped_column(Integer)
+    shoulder_x_px: Mapped[float | None]
+    shoulder_y_px: Mapped[float | None]
+    ankle_x_px: Mapped[float | None]
+    ankle_y_px: Mapped[float | None]
+    keypoints: Mapped[list[list[float]] | None] = mapped_column(JSON)
+    usable: Mapped[bool] = mapped_column(Boolean)
+    unusable_reason: Mapped[str | None] = mapped_column(String(REASON_MAX_LENGTH))
+    cell: Mapped[int | None] = mapped_column(Integer)
+    sample_key: Mapped[int] = mapped_column(Integer)
+
+    __table_args__ = (
+        # Also the index behind the cascade from frames.
+        UniqueConstraint("frame_id", "person_index"),
+        # The calibration sample: equality on (camera_id, usable, cell), then a range on sample_key.
+        Index("ix_observations_camera_id_usable_cell_sample_key", "camera_id", "usable", "cell", "sample_key"),
+        CheckConstraint(
+            "NOT usable OR (shoulder_x_px IS NOT NULL AND shoulder_y_px IS NOT NULL AND ankle_x_px IS NOT NULL "
+            "AND ankle_y_px IS NOT NULL AND cell IS NOT NULL)",
+            name="usable_is_complete",
+        ),
+        CheckConstraint("usable OR unusable_reason IS NOT NULL", name="unusable_has_reason"),
+        CheckConstraint(f"cell IS NULL OR (cell >= 0 AND cell < {GRID_CELLS})", name="cell_on_grid"),
+        CheckConstraint(f"sample_key >= 0 AND sample_key < {SAMPLE_KEY_SPACE}", name="sample_key_range"),
+    )
+
+
+class CalibrationVersion(Base):
+    """One solve of one camera (successful or not); at most one per camera is current."""
+
+    __tablename__ = "calibrations"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
+    camera_id: Mapped[str] = mapped_column(String(CAMERA_ID_MAX_LENGTH), ForeignKey("cameras.id", ondelete="CASCADE"))
+    version: Mapped[int] = mapped_column(Integer)
+    status: Mapped[str] = mapped_column(String(16))
+    reason: Mapped[str | None]
+    fx_px: Mapped[float | None]
+    fy_px: Mapped[float | None]
+    cx_px: Mapped[float | None]
+    cy_px: Mapped[float | None]
+    normal_x: Mapped[float | None]
+    normal_y: Mapped[float | None]
+    normal_z: Mapped[float | None]
+    rho_m: Mapped[float | None]
+    fx_std_px: Mapped[float | None]
+    fy_std_px: Mapped[float | None]
+    normal_std_deg: Mapped[float | None]
+    rho_std_m: Mapped[float | None]
+    covariance: Mapped[list[list[float | None]] | None] = mapped_column(JSON)
+    noise_px: Mapped[float | None]
+    distortion_k: Mapped[float | None]
+    person_height_m: Mapped[float]
+    people_used: Mapped[int] = mapped_column(Integer)
+    inliers: Mapped[int] = mapped_column(Integer)
+    evidence_count: Mapped[int] = mapped_column(BigInteger)
+    is_current: Mapped[bool] = mapped_column(Boolean, default=False)
+    forced: Mapped[bool] = mapped_column(Boolean, default=False)
+    duration_s: Mapped[float | None]
+    created_at: Mapped[datetime] = mapped_column(default=utc_now)
+
+    __table_args__ = (
+        UniqueConstraint("camera_id", "version"),
+        # The database, not only the code, guarantees a single current version per camera.
+        Index(
+            "uq_calibrations_camera_id_current",
+            "camera_id",
+            unique=True,
+            sqlite_where=text("is_current"),
+            postgresql_where=text("is_current"),
+        ),
+        CheckConstraint(f"status IN {_in(CALIBRATION_STATUSES)}", name="status"),
+        CheckConstraint("NOT is_current OR status = 'ok'", name="current_is_ok"),
+        CheckConstraint(
+            "status <> 'ok' OR (fx_px IS NOT NULL AND fy_px IS NOT NULL AND cx_px IS NOT NULL AND cy_px IS NOT NULL "
+            "AND normal_x IS NOT NULL AND normal_y IS NOT NULL AND normal_z IS NOT NULL AND rho_m IS NOT NULL)",
+            name="ok_is_complete",
+        ),
+        CheckConstraint("version >= 1", name="version_positive"),
+    )
+
+
+class ViolationEvent(Base):
+    """A pair of people closer than their camera's threshold in one frame."""
+
+    __tablename__ = "violation_events"
+
+    id: Mapped[int] = mapped_column(BigIntegerKey, primary_key=True, autoincrement=True)
+    camera_id: Mapped[str] = mapped_column(String(CAMERA_ID_MAX_LENGTH), ForeignKey("cameras.id", ondelete="CASCADE"))
+    frame_id: Mapped[uuid.UUID] = mapped_column(ForeignKey("frames.id", ondelete="CASCADE"))
+    timestamp: Mapped[datetime]
+    # floor(timestamp) in Unix seconds: time buckets are then `epoch_s / width * width` on every backend.
+    epoch_s: Mapped[int] = mapped_column(BigInteger)
+    person_i: Mapped[int] = mapped_column(Integer)
+    person_j: Mapped[int] = mapped_column(Integer)
+    distance_m: Mapped[float]
+    distance_std_m: Mapped[float | None]
+
+    __table_args__ = (
+        # Recomputing a frame replaces its events instead of duplicating them; also the cascade's index.
+        UniqueConstraint("frame_id", "person_i", "person_j"),
+        # Bucket counts over a window: a range scan on (camera_id, epoch_s), the timestamp in integer form.
+        Index("ix_violation_events_camera_id_epoch_s", "camera_id", "epoch_s"),
+        CheckConstraint("person_i < person_j", name="pair_ordered"),
+    )

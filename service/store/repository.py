@@ -1,0 +1,745 @@
+"""Every database operation the API and the workers perform, one small function each, taking a Session.
+
+Functions flush but never commit: the caller owns the transaction, so a route or a job can combine several
+operations (store a result and its violation events, say) atomically. Functions that may race with themselves
+across processes (camera upsert, idempotent frame insert) run their insert inside a SAVEPOINT and resolve a
+unique-constraint collision by reading the winner's row, so a retry never fails and never duplicates.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import random
+import uuid
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from typing import TYPE_CHECKING, Any, cast
+
+import numpy as np
+from sqlalchemy import Select, Table, delete, func, insert, select, true, union_all, update
+from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session
+
+from .models import (
+    CALIBRATION_STATUSES,
+    DEFAULT_DISTANCE_THRESHOLD_M,
+    FRAME_STATUSES,
+    GRID_CELLS,
+    GRID_COLS,
+    GRID_ROWS,
+    SAMPLE_KEY_SPACE,
+    CalibrationVersion,
+    Camera,
+    Frame,
+    Observation,
+    ViolationEvent,
+    utc_now,
+)
+
+if TYPE_CHECKING:
+    from service.geometry import Calibration
+
+# Bulk inserts go through the Core tables: ~15% less overhead per frame than ORM bulk inserts.
+_OBSERVATIONS = cast(Table, Observation.__table__)
+_VIOLATION_EVENTS = cast(Table, ViolationEvent.__table__)
+
+MINUTE_S = 60
+HOUR_S = 3600
+
+Point = tuple[float, float]
+
+
+class CameraNotFoundError(LookupError):
+    """The camera id is not configured (the API answers 404)."""
+
+
+class FrameNotFoundError(LookupError):
+    """No frame with that id (for that camera)."""
+
+
+# --------------------------------------------------------------------------------------------------- inputs
+
+
+@dataclass(frozen=True)
+class PersonIn:
+    """One person of a posted frame, already reduced to the two points the geometry uses.
+
+    `unusable_reason` is the caller's verdict on evidence quality (low keypoint scores, say); a person whose
+    shoulder or ankle centre is missing is never usable, and the store records why.
+    """
+
+    shoulder_px: Point | None
+    ankle_px: Point | None
+    keypoints: Sequence[Sequence[float]] | None = None
+    unusable_reason: str | None = None
+
+
+@dataclass(frozen=True)
+class CalibrationValues:
+    """What one solve produced, in the store's units; build it with from_solution or failure."""
+
+    status: str
+    person_height_m: float
+    people_used: int
+    inliers: int
+    evidence_count: int
+    reason: str | None = None
+    fx_px: float | None = None
+    fy_px: float | None = None
+    cx_px: float | None = None
+    cy_px: float | None = None
+    normal: tuple[float, float, float] | None = None
+    rho_m: float | None = None
+    fx_std_px: float | None = None
+    fy_std_px: float | None = None
+    normal_std_deg: float | None = None
+    rho_std_m: float | None = None
+    covariance: Sequence[Sequence[float]] | None = None
+    noise_px: float | None = None
+    distortion_k: float | None = None
+    duration_s: float | None = None
+
+    @classmethod
+    def from_solution(
+        cls, cal: Calibration, *, people_used: int, evidence_count: int, duration_s: float | None = None
+    ) -> CalibrationValues:
+        """The storable part of a service.geometry Calibration (per-person arrays are not kept)."""
+        unc = cal.uncertainty
+        normal = tuple(float(v) for v in cal.normal)
+        return cls(
+            status="ok",
+            person_height_m=float(cal.height_m),
+            people_used=people_used,
+            inliers=cal.num_inliers,
+            evidence_count=evidence_count,
+            fx_px=float(cal.fx),
+            fy_px=float(cal.fy),
+            cx_px=float(cal.cx),
+            cy_px=float(cal.cy),
+            normal=(normal[0], normal[1], normal[2]),
+            rho_m=float(cal.rho),
+            fx_std_px=None if unc is None else float(unc.fx_px),
+            fy_std_px=None if unc is None else float(unc.fy_px),
+            normal_std_deg=None if unc is None else float(unc.normal_deg),
+            rho_std_m=None if unc is None else float(unc.rho_m),
+            covariance=None if unc is None else np.asarray(unc.covariance, dtype=float).tolist(),
+            noise_px=None if unc is None else float(unc.noise_px),
+            distortion_k=float(cal.distortion_k),
+            duration_s=duration_s,
+        )
+
+    @classmethod
+    def failure(
+        cls,
+        reason: str,
+        *,
+        person_height_m: float,
+        people_used: int,
+        evidence_count: int,
+        duration_s: float | None = None,
+    ) -> CalibrationValues:
+        """A solve that produced no camera, kept in the history so operators can see why."""
+        return cls(
+            status="failed",
+            reason=reason,
+            person_height_m=person_height_m,
+            people_used=people_used,
+            inliers=0,
+            evidence_count=evidence_count,
+            duration_s=duration_s,
+        )
+
+
+@dataclass(frozen=True)
+class ViolationIn:
+    """A pair of people (indices into the frame's people) closer than the camera's threshold."""
+
+    person_i: int
+    person_j: int
+    distance_m: float
+    distance_std_m: float | None = None
+
+
+# --------------------------------------------------------------------------------------------------- outputs
+
+
+@dataclass(frozen=True)
+class EvidenceSample:
+    """A calibration's input: shoulder/ankle centres of a balanced sample of usable observations.
+
+    `queries` and `rows_read` show the cost: rows_read stays near len(self) however much is stored.
+    """
+
+    observation_ids: list[int]
+    cells: list[int]
+    tops_px: np.ndarray
+    bottoms_px: np.ndarray
+    queries: int = 0
+    rows_read: int = 0
+
+    def __len__(self) -> int:
+        return len(self.observation_ids)
+
+
+@dataclass(frozen=True)
+class ViolationBucket:
+    """Violations whose timestamp falls in [start, start + width)."""
+
+    start: datetime
+    count: int
+
+
+# --------------------------------------------------------------------------------------------------- helpers
+
+
+def _finite_or_none(value: float | None) -> float | None:
+    """NaN/inf become NULL: SQLite silently stores NaN as NULL anyway, and PostgreSQL JSON rejects it."""
+    if value is None:
+        return None
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
+def _check_point(name: str, point: Point | None) -> None:
+    if point is not None and not (len(point) == 2 and all(math.isfinite(float(v)) for v in point)):
+        raise ValueError(f"{name} must be two finite pixel coordinates, got {point!r}")
+
+
+def grid_cell(x_px: float, y_px: float, width_px: int, height_px: int) -> int:
+    """The sampling-grid cell of an image point; points slightly outside the image go to the edge cell."""
+    col = min(max(math.floor(x_px / width_px * GRID_COLS), 0), GRID_COLS - 1)
+    row = min(max(math.floor(y_px / height_px * GRID_ROWS), 0), GRID_ROWS - 1)
+    return row * GRID_COLS + col
+
+
+def sample_key(frame_id: uuid.UUID, person_index: int) -> int:
+    """A uniform 31-bit key derived from the observation's identity, so the stored order is reproducible."""
+    digest = hashlib.blake2b(frame_id.bytes + person_index.to_bytes(4, "big"), digest_size=4).digest()
+    return int.from_bytes(digest, "big") % SAMPLE_KEY_SPACE
+
+
+def _require_camera(session: Session, camera_id: str, *, for_update: bool = False) -> Camera:
+    stmt = select(Camera).where(Camera.id == camera_id).execution_options(populate_existing=True)
+    if for_update:
+        stmt = stmt.with_for_update()
+    camera = session.execute(stmt).scalar_one_or_none()
+    if camera is None:
+        raise CameraNotFoundError(camera_id)
+    return camera
+
+
+# --------------------------------------------------------------------------------------------------- cameras
+
+
+def upsert_camera(
+    session: Session,
+    camera_id: str,
+    *,
+    image_width_px: int,
+    image_height_px: int,
+    person_height_m: float,
+    equal_focal: bool = True,
+    distance_threshold_m: float = DEFAULT_DISTANCE_THRESHOLD_M,
+    known_focal_px: float | None = None,
+    now: datetime | None = None,
+) -> tuple[Camera, bool]:
+    """Create or update a camera's settings; returns (camera, created) so PUT can answer 201 or 200.
+
+    person_height_m has no default here: the API owns the default (service.geometry.DEFAULT_HEIGHT_M).
+
+    Changing the image size does not touch stored evidence: deciding whether old observations still apply
+    (and resetting them with reset_calibration) is the API's policy.
+    """
+    now = now or utc_now()
+    values: dict[str, Any] = {
+        "image_width_px": image_width_px,
+        "image_height_px": image_height_px,
+        "person_height_m": person_height_m,
+        "equal_focal": equal_focal,
+        "distance_threshold_m": distance_threshold_m,
+        "known_focal_px": known_focal_px,
+    }
+    camera = session.get(Camera, camera_id)
+    if camera is None:
+        try:
+            with session.begin_nested():
+                camera = Camera(id=camera_id, created_at=now, updated_at=now, **values)
+                session.add(camera)
+            return camera, True
+        except IntegrityError:
+            # Either a concurrent PUT created it first (update it below) or the values break a constraint.
+            camera = session.get(Camera, camera_id)
+            if camera is None:
+                raise
+    changed = False
+    for name, value in values.items():
+        if getattr(camera, name) != value:
+            setattr(camera, name, value)
+            changed = True
+    if changed:
+        camera.updated_at = now
+        session.flush()
+    return camera, False
+
+
+def get_camera(session: Session, camera_id: str) -> Camera | None:
+    return session.get(Camera, camera_id)
+
+
+def list_cameras(session: Session, *, limit: int = 100, after: str | None = None) -> list[Camera]:
+    """Cameras in id order, a page at a time: pass the last id of a page as `after` for the next one."""
+    stmt = select(Camera).order_by(Camera.id).limit(limit)
+    if after is not None:
+        stmt = stmt.where(Camera.id > after)
+    return list(session.scalars(stmt))
+
+
+def delete_camera(session: Session, camera_id: str) -> bool:
+    """Delete a camera and, by ON DELETE CASCADE, all its frames, observations, calibrations and events."""
+    result = session.execute(delete(Camera).where(Camera.id == camera_id))
+    return bool(result.rowcount)  # type: ignore[attr-defined]
+
+
+# --------------------------------------------------------------------------------------------------- frames
+
+
+def _observation_rows(camera: Camera, frame_id: uuid.UUID, people: Sequence[PersonIn]) -> list[dict[str, Any]]:
+    rows = []
+    for index, person in enumerate(people):
+        _check_point("shoulder_px", person.shoulder_px)
+        _check_point("ankle_px", person.ankle_px)
+        reason = person.unusable_reason
+        if reason is None and person.shoulder_px is None:
+            reason = "shoulder centre not visible"
+        if reason is None and person.ankle_px is None:
+            reason = "ankle centre not visible"
+        shoulder = person.shoulder_px or (None, None)
+        ankle = person.ankle_px or (None, None)
+        cell = None
+        if person.ankle_px is not None:
+            cell = grid_cell(person.ankle_px[0], person.ankle_px[1], camera.image_width_px, camera.image_height_px)
+        rows.append(
+            {
+                "camera_id": camera.id,
+                "frame_id": frame_id,
+                "person_index": index,
+                "shoulder_x_px": shoulder[0],
+                "shoulder_y_px": shoulder[1],
+                "ankle_x_px": ankle[0],
+                "ankle_y_px": ankle[1],
+                "keypoints": None if person.keypoints is None else [list(map(float, k)) for k in person.keypoints],
+                "usable": reason is None,
+                "unusable_reason": reason,
+                "cell": cell,
+                "sample_key": sample_key(frame_id, index),
+            }
+        )
+    return rows
+
+
+def _frame_by_client_id(session: Session, camera_id: str, client_frame_id: str) -> Frame | None:
+    stmt = select(Frame).where(Frame.camera_id == camera_id, Frame.client_frame_id == client_frame_id)
+    return session.execute(stmt).scalar_one_or_none()
+
+
+def add_keypoint_frame(
+    session: Session,
+    camera_id: str,
+    *,
+    timestamp: datetime,
+    people: Sequence[PersonIn],
+    client_frame_id: str | None = None,
+    received_at: datetime | None = None,
+) -> tuple[Frame, bool]:
+    """Store a frame and its people atomically; returns (frame, created).
+
+    A frame posted again with the same client frame id (a client retry, possibly racing the original) returns
+    the stored frame with created=False and stores nothing, so evidence is never counted twice.
+    """
+    if timestamp.tzinfo is None or timestamp.utcoffset() is None:
+        raise ValueError(f"timestamp {timestamp!r} has no timezone: the store keeps UTC instants")
+    camera = _require_camera(session, camera_id)
+    if client_frame_id is not None:
+        existing = _frame_by_client_id(session, camera_id, client_frame_id)
+        if existing is not None:
+            return existing, False
+    frame = Frame(
+        id=uuid.uuid4(),
+        camera_id=camera_id,
+        client_frame_id=client_frame_id,
+        timestamp=timestamp,
+        received_at=received_at or utc_now(),
+        source="keypoints",
+        status="pending",
+        people=len(people),
+    )
+    rows = _observation_rows(camera, frame.id, people)
+    usable = sum(1 for row in rows if row["usable"])
+    try:
+        with session.begin_nested():
+            session.add(frame)
+            session.flush()
+            if rows:
+                session.execute(insert(_OBSERVATIONS), rows)
+            if usable:
+                session.execute(
+                    update(Camera)
+                    .where(Camera.id == camera_id)
+                    .values(usable_evidence_count=Camera.usable_evidence_count + usable)
+                    .execution_options(synchronize_session=False)
+                )
+    except IntegrityError:
+        if client_frame_id is None:
+            raise
+        existing = _frame_by_client_id(session, camera_id, client_frame_id)
+        if existing is None:
+            raise
+        return existing, False
+    session.expire(camera, ["usable_evidence_count"])
+    return frame, True
+
+
+def get_frame(session: Session, camera_id: str, frame_id: uuid.UUID) -> Frame | None:
+    """A frame, only if it belongs to that camera (a frame id alone must not reveal another camera's data)."""
+    frame = session.get(Frame, frame_id)
+    return frame if frame is not None and frame.camera_id == camera_id else None
+
+
+def frame_observations(session: Session, frame_id: uuid.UUID) -> list[Observation]:
+    """A frame's people in posted order: what a distance computation measures."""
+    stmt = select(Observation).where(Observation.frame_id == frame_id).order_by(Observation.person_index)
+    return list(session.scalars(stmt))
+
+
+def pending_frames(session: Session, camera_id: str | None = None, *, limit: int | None = None) -> list[Frame]:
+    """Frames still waiting for a result, oldest first; all cameras when camera_id is None (worker start-up)."""
+    stmt = select(Frame).where(Frame.status == "pending")
+    if camera_id is not None:
+        stmt = stmt.where(Frame.camera_id == camera_id)
+    stmt = stmt.order_by(Frame.received_at, Frame.id)
+    if limit is not None:
+        stmt = stmt.limit(limit)
+    return list(session.scalars(stmt))
+
+
+def set_frame_result(
+    session: Session,
+    frame_id: uuid.UUID,
+    *,
+    status: str,
+    result: dict[str, Any] | None = None,
+    calibration_version: int | None = None,
+    error: str | None = None,
+    now: datetime | None = None,
+) -> Frame:
+    """Record a frame's outcome; recomputing a frame (after a newer calibration) overwrites the previous one."""
+    if status not in FRAME_STATUSES:
+        raise ValueError(f"status must be one of {FRAME_STATUSES}, got {status!r}")
+    frame = session.get(Frame, frame_id)
+    if frame is None:
+        raise FrameNotFoundError(str(frame_id))
+    frame.status = status
+    frame.result = result
+    frame.calibration_version = calibration_version
+    frame.error = error
+    frame.processed_at = None if status == "pending" else (now or utc_now())
+    session.flush()
+    return frame
+
+
+# --------------------------------------------------------------------------------------------------- evidence
+
+
+def usable_evidence_count(session: Session, camera_id: str) -> int:
+    """Usable observations stored for the camera, from the counter kept on insert (O(1))."""
+    count = session.execute(select(Camera.usable_evidence_count).where(Camera.id == camera_id)).scalar_one_or_none()
+    if count is None:
+        raise CameraNotFoundError(camera_id)
+    return int(count)
+
+
+def calibration_due(camera: Camera, *, min_people: int, growth_factor: float) -> bool:
+    """Whether evidence warrants a solve: a first one at min_people, then each time it grows by growth_factor."""
+    evidence = camera.usable_evidence_count
+    if evidence < min_people:
+        return False
+    if camera.evidence_at_last_solve <= 0:
+        return True
+    return evidence >= growth_factor * camera.evidence_at_last_solve
+
+
+@dataclass
+class _CellCursor:
+    """Where reading one cell in sample_key order resumes: keys >= start first, then wrapping to [0, start)."""
+
+    start: int
+    wrapped: bool = False
+    last: tuple[int, int] | None = None  # (sample_key, id) of the last row read
+    rows: list[Any] = field(default_factory=list)
+
+
+_SAMPLE_COLUMNS = (
+    Observation.id,
+    Observation.cell,
+    Observation.sample_key,
+    Observation.shoulder_x_px,
+    Observation.shoulder_y_px,
+    Observation.ankle_x_px,
+    Observation.ankle_y_px,
+)
+
+
+def _cell_page(camera_id: str, cell: int, cursor: _CellCursor, n: int) -> Select[*tuple[Any, ...]]:
+    """The next n rows of one cell: an index range scan on (camera_id, usable, cell, sample_key)."""
+    key, oid = Observation.sample_key, Observation.id
+    conditions = [Observation.camera_id == camera_id, Observation.usable == true(), Observation.cell == cell]
+    if cursor.wrapped:
+        conditions.append(key < cursor.start)
+    if cursor.last is not None:
+        last_key, last_id = cursor.last
+        # The plain bound lets both backends start the index scan at last_key; the OR breaks key ties by id.
+        conditions += [key >= last_key, (key > last_key) | (oid > last_id)]
+    elif not cursor.wrapped:
+        conditions.append(key >= cursor.start)
+    return select(*_SAMPLE_COLUMNS).where(*conditions).order_by(key, oid).limit(n)
+
+
+def sample_evidence(session: Session, camera_id: str, *, cap: int, seed: int = 0) -> EvidenceSample:
+    """At most `cap` usable observations, spread as evenly over the image grid as the data allow.
+
+    Round-robin over grid cells: every cell contributes equally, and cells with fewer people than their share
+    give the remainder to the others (water-filling). Within a cell the order is the stored pseudo-random
+    sample_key, read from a seed-dependent start, so a sample is random, reproducible for a given seed, and
+    differs between seeds. The work is O(cap + cells) rows, whatever is stored: each round is one statement, a
+    UNION ALL of one LIMITed index range scan per cell that is still short of the current level (per-cell LIMIT
+    subqueries are the only "top n per group" that SQLite and PostgreSQL both run without reading every row;
+    window functions and LATERAL do not qualify). Typically two to four rounds.
+    """
+    if cap < 1:
+        raise ValueError(f"cap must be positive, got {cap}")
+    rng = random.Random(seed)
+    start = rng.randrange(SAMPLE_KEY_SPACE)
+    cell_order = list(range(GRID_CELLS))
+    rng.shuffle(cell_order)
+    cursors = {cell: _CellCursor(start) for cell in range(GRID_CELLS)}
+    active = set(cursors)
+    level = queries = rows_read = 0
+    while active:
+        wanted = {cell: level - len(cursors[cell].rows) for cell in active if len(cursors[cell].rows) < level}
+        if not wanted:
+            total = sum(len(c.rows) for c in cursors.values())
+            if total >= cap:
+                break
+            level += -(-(cap - total) // len(active))
+            wanted = {cell: level - len(cursors[cell].rows) for cell in active}
+        pages = [_cell_page(camera_id, cell, cursors[cell], n) for cell, n in sorted(wanted.items())]
+        stmt = pages[0] if len(pages) == 1 else union_all(*(page.subquery().select() for page in pages))
+        rows = session.execute(stmt).all()
+        queries += 1
+        rows_read += len(rows)
+        by_cell: dict[int, list[Any]] = {cell: [] for cell in wanted}
+        for row in rows:
+            by_cell[row.cell].append(row)
+        for cell, n in wanted.items():
+            cursor, got = cursors[cell], sorted(by_cell[cell], key=lambda r: (r.sample_key, r.id))
+            cursor.rows.extend(got)
+            if got:
+                cursor.last = (got[-1].sample_key, got[-1].id)
+            if len(got) < n:
+                if cursor.wrapped:
+                    active.discard(cell)
+                else:
+                    cursor.wrapped, cursor.last = True, None
+    chosen: list[Any] = []
+    for rank in range(level):
+        for cell in cell_order:
+            if len(chosen) == cap:
+                break
+            if rank < len(cursors[cell].rows):
+                chosen.append(cursors[cell].rows[rank])
+    tops = np.array([(r.shoulder_x_px, r.shoulder_y_px) for r in chosen], dtype=float).reshape(-1, 2)
+    bottoms = np.array([(r.ankle_x_px, r.ankle_y_px) for r in chosen], dtype=float).reshape(-1, 2)
+    return EvidenceSample(
+        observation_ids=[int(r.id) for r in chosen],
+        cells=[int(r.cell) for r in chosen],
+        tops_px=tops,
+        bottoms_px=bottoms,
+        queries=queries,
+        rows_read=rows_read,
+    )
+
+
+# --------------------------------------------------------------------------------------------------- calibrations
+
+
+def add_calibration(
+    session: Session,
+    camera_id: str,
+    values: CalibrationValues,
+    *,
+    make_current: bool,
+    forced: bool = False,
+    now: datetime | None = None,
+) -> CalibrationVersion:
+    """Append the camera's next calibration version; it replaces the current one only if make_current.
+
+    Whether a solve is good enough to become current is the caller's rule (the calibration worker's). Every
+    solve, failed ones included, moves the camera's evidence_at_last_solve, so a camera that cannot be
+    calibrated yet waits for more evidence instead of re-solving on every frame. The camera row is locked
+    (PostgreSQL; SQLite transactions are exclusive anyway) so version numbers are allocated one at a time.
+    """
+    if values.status not in CALIBRATION_STATUSES:
+        raise ValueError(f"status must be one of {CALIBRATION_STATUSES}, got {values.status!r}")
+    if make_current and values.status != "ok":
+        raise ValueError("only a successful calibration can become current")
+    camera = _require_camera(session, camera_id, for_update=True)
+    last = session.execute(
+        select(func.max(CalibrationVersion.version)).where(CalibrationVersion.camera_id == camera_id)
+    ).scalar_one()
+    if make_current:
+        # Before the insert, so the partial unique index never sees two current rows.
+        session.execute(
+            update(CalibrationVersion)
+            .where(CalibrationVersion.camera_id == camera_id, CalibrationVersion.is_current == true())
+            .values(is_current=False)
+            .execution_options(synchronize_session="fetch")
+        )
+    normal = values.normal or (None, None, None)
+    covariance = None
+    if values.covariance is not None:
+        covariance = [[_finite_or_none(v) for v in row] for row in values.covariance]
+    record = CalibrationVersion(
+        camera_id=camera_id,
+        version=(last or 0) + 1,
+        status=values.status,
+        reason=values.reason,
+        fx_px=_finite_or_none(values.fx_px),
+        fy_px=_finite_or_none(values.fy_px),
+        cx_px=_finite_or_none(values.cx_px),
+        cy_px=_finite_or_none(values.cy_px),
+        normal_x=_finite_or_none(normal[0]),
+        normal_y=_finite_or_none(normal[1]),
+        normal_z=_finite_or_none(normal[2]),
+        rho_m=_finite_or_none(values.rho_m),
+        fx_std_px=_finite_or_none(values.fx_std_px),
+        fy_std_px=_finite_or_none(values.fy_std_px),
+        normal_std_deg=_finite_or_none(values.normal_std_deg),
+        rho_std_m=_finite_or_none(values.rho_std_m),
+        covariance=covariance,
+        noise_px=_finite_or_none(values.noise_px),
+        distortion_k=_finite_or_none(values.distortion_k),
+        person_height_m=values.person_height_m,
+        people_used=values.people_used,
+        inliers=values.inliers,
+        evidence_count=values.evidence_count,
+        is_current=make_current,
+        forced=forced,
+        duration_s=_finite_or_none(values.duration_s),
+        created_at=now or utc_now(),
+    )
+    session.add(record)
+    camera.evidence_at_last_solve = values.evidence_count
+    session.flush()
+    return record
+
+
+def current_calibration(session: Session, camera_id: str) -> CalibrationVersion | None:
+    stmt = select(CalibrationVersion).where(
+        CalibrationVersion.camera_id == camera_id, CalibrationVersion.is_current == true()
+    )
+    return session.execute(stmt).scalar_one_or_none()
+
+
+def get_calibration(session: Session, camera_id: str, version: int) -> CalibrationVersion | None:
+    stmt = select(CalibrationVersion).where(
+        CalibrationVersion.camera_id == camera_id, CalibrationVersion.version == version
+    )
+    return session.execute(stmt).scalar_one_or_none()
+
+
+def calibration_history(
+    session: Session, camera_id: str, *, limit: int = 100, before_version: int | None = None
+) -> list[CalibrationVersion]:
+    """Versions newest first, a page at a time (pass the last version of a page as before_version)."""
+    stmt = select(CalibrationVersion).where(CalibrationVersion.camera_id == camera_id)
+    if before_version is not None:
+        stmt = stmt.where(CalibrationVersion.version < before_version)
+    return list(session.scalars(stmt.order_by(CalibrationVersion.version.desc()).limit(limit)))
+
+
+def reset_calibration(session: Session, camera_id: str, *, drop_evidence: bool = False) -> None:
+    """Make the camera uncalibrated again (history is kept); optionally forget its stored observations too.
+
+    Dropping evidence is what a moved camera or a changed resolution needs: old people no longer fit the view.
+    """
+    camera = _require_camera(session, camera_id, for_update=True)
+    session.execute(
+        update(CalibrationVersion)
+        .where(CalibrationVersion.camera_id == camera_id, CalibrationVersion.is_current == true())
+        .values(is_current=False)
+        .execution_options(synchronize_session="fetch")
+    )
+    camera.evidence_at_last_solve = 0
+    if drop_evidence:
+        session.execute(delete(Observation).where(Observation.camera_id == camera_id))
+        camera.usable_evidence_count = 0
+    session.flush()
+
+
+# --------------------------------------------------------------------------------------------------- violations
+
+
+def record_violations(session: Session, frame: Frame, violations: Sequence[ViolationIn]) -> int:
+    """Replace the frame's violation events with these (a recomputed frame must not count twice)."""
+    session.execute(delete(ViolationEvent).where(ViolationEvent.frame_id == frame.id))
+    epoch_s = math.floor(frame.timestamp.timestamp())
+    rows = []
+    for v in violations:
+        i, j = sorted((int(v.person_i), int(v.person_j)))
+        if i == j or i < 0:
+            raise ValueError(f"a violation needs two different people, got ({v.person_i}, {v.person_j})")
+        rows.append(
+            {
+                "camera_id": frame.camera_id,
+                "frame_id": frame.id,
+                "timestamp": frame.timestamp,
+                "epoch_s": epoch_s,
+                "person_i": i,
+                "person_j": j,
+                "distance_m": float(v.distance_m),
+                "distance_std_m": _finite_or_none(v.distance_std_m),
+            }
+        )
+    if rows:
+        session.execute(insert(_VIOLATION_EVENTS), rows)
+    return len(rows)
+
+
+def violation_counts(
+    session: Session,
+    camera_id: str,
+    *,
+    since: datetime,
+    until: datetime | None = None,
+    bucket_s: int = MINUTE_S,
+) -> list[ViolationBucket]:
+    """Violation counts per time bucket (UTC-aligned, `bucket_s` wide) from `since`, empty buckets omitted.
+
+    Buckets are integer arithmetic on epoch seconds, `epoch_s / width * width` (integer division on both
+    backends), grouped in an outer query so PostgreSQL sees one grouping column rather than two textually
+    different parameterised expressions. Resolution is one second: `since` and `until` are floored to whole
+    seconds, `until` exclusive.
+    """
+    if bucket_s < 1:
+        raise ValueError(f"bucket_s must be positive, got {bucket_s}")
+    conditions = [ViolationEvent.camera_id == camera_id, ViolationEvent.epoch_s >= math.floor(since.timestamp())]
+    if until is not None:
+        conditions.append(ViolationEvent.epoch_s < math.floor(until.timestamp()))
+    buckets = select(((ViolationEvent.epoch_s // bucket_s) * bucket_s).label("bucket")).where(*conditions).subquery()
+    stmt = select(buckets.c.bucket, func.count()).group_by(buckets.c.bucket).order_by(buckets.c.bucket)
+    return [
+        ViolationBucket(start=datetime.fromtimestamp(int(bucket), UTC), count=int(count))
+        for bucket, count in session.execute(stmt)
+    ]
