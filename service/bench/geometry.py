@@ -321,7 +321,7 @@ class _Context:
             outputs = list(self.executor.map(run_trial, trials, chunksize=chunk))
         results: Results = {}
         for k, setting in enumerate(settings):
-            block = outputs[k * self.options.trials : (k + 1) * self.options.trials]
+            block = outputs[k * count : (k + 1) * count]
             for j, method in enumerate(methods):
                 summary = summarise([out[j] for out in block])
                 results[setting.label, method] = summary

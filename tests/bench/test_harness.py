@@ -107,3 +107,14 @@ def test_cli_version() -> None:
     result = CliRunner().invoke(app, ["--version"])
     assert result.exit_code == 0
     assert result.output.startswith("posemetry ")
+
+
+def test_capped_experiment_keeps_every_setting_aligned(monkeypatch: pytest.MonkeyPatch) -> None:
+    """An experiment that runs fewer trials than --trials (distortion) still fills every row of its table."""
+    import service.bench.geometry as bench
+
+    monkeypatch.setattr(bench, "DISTORTION_MAX_TRIALS", 1)
+    (table,) = run_benchmark(BenchmarkOptions(trials=2, workers=1, only=("distortion",))).tables
+    assert len(table.rows) == 16
+    for row in table.rows:
+        assert all(cell not in ("-", "- (-)") for cell in row), row
