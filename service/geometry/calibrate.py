@@ -26,6 +26,10 @@ MIN_NOISE_FRACTION = 2e-5
 # Focal lengths outside this many image widths are treated as a failed solve
 # (0.05: a > 170 deg fisheye; 50: a > 1000 mm lens on a full-frame sensor).
 _FOCAL_RANGE = (0.05, 50.0)
+# A solve whose own 1-sigma focal uncertainty exceeds this fraction of f has not
+# determined the camera (e.g. a wrong RANSAC consensus, or every person at one
+# depth); it is refused rather than reported.
+MAX_RELATIVE_FOCAL_STD = 0.5
 # Points further outside the image than this many image sizes are rejected as absurd.
 _OUTSIDE_MARGIN = 1.0
 
@@ -180,6 +184,12 @@ def check_plausible(cal: Calibration, minimum_people: int) -> None:
         raise CalibrationError("no finite ground plane below the camera")
     if cal.num_inliers < minimum_people:
         raise CalibrationError(f"only {cal.num_inliers} people could be placed on the ground plane")
+    unc = cal.uncertainty
+    if unc is not None and max(unc.fx_px / cal.fx, unc.fy_px / cal.fy) > MAX_RELATIVE_FOCAL_STD:
+        raise CalibrationError(
+            f"the people seen do not determine the focal length (fx = {cal.fx:.0f} +- {unc.fx_px:.0f} px); "
+            "more people, spread over the view and over distances, are needed"
+        )
 
 
 # A person whose whitened residual cost exceeds this (chi^2 with 2 degrees of

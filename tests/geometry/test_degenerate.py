@@ -101,3 +101,10 @@ def test_random_garbage_never_crashes_or_returns_nonsense() -> None:
             placed = cal.inliers
             assert np.all(np.isfinite(cal.points_bottom[placed]))
             assert np.all(cal.points_bottom[placed][:, 2] > 0)
+
+
+def test_undetermined_focal_length_is_refused_not_reported() -> None:
+    """Four noisy people (3 px) with varied heights: the solve lands on an f it cannot support."""
+    s = scene(12, noise_px=3.0, n_people=4, square_pixels=True, height_std_m=0.1)
+    with pytest.raises(CalibrationError, match="do not determine the focal length"):
+        calibrate(s.tops_px, s.bottoms_px, SIZE, 1.7)
