@@ -1,0 +1,85 @@
+"""The FastAPI application factory: the stateless HTTP front of posemetry.
+
+The app holds no state of its own beyond an engine and a dispatcher, so any number of API processes can run
+side by side. Everything it accepts goes to SQL first; the dispatcher only nudges workers.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+
+from fastapi import FastAPI
+from sqlalchemy import Engine
+
+from service import __version__
+from service.dispatch import Dispatcher, NullDispatcher
+from service.problems import PROBLEM_MEDIA_TYPE, BodyGuard, install_handlers
+from service.routers import calibration, cameras, distances, frames, health, violations
+from service.settings import Settings, get_settings
+from service.store import make_engine, make_session_factory
+
+log = logging.getLogger(__name__)
+
+DESCRIPTION = """Camera auto-calibration and physical distances from human pose.
+
+Post people's keypoints per camera; the service calibrates each camera from the people it sees and reports how
+far apart people stand, in metres, with a 1-sigma uncertainty. Every error is an RFC 9457
+`application/problem+json` document.
+"""
+
+PROBLEM_SCHEMA = {
+    "type": "object",
+    "properties": {
+        "type": {"type": "string", "format": "uri"},
+        "title": {"type": "string"},
+        "status": {"type": "integer"},
+        "detail": {"type": "string"},
+        "instance": {"type": "string"},
+        "errors": {"type": "array", "items": {"type": "object"}},
+    },
+    "required": ["type", "title", "status", "detail"],
+}
+PROBLEM_RESPONSES: dict[int | str, dict[str, object]] = {
+    "4XX": {"description": "Problem details (RFC 9457)", "content": {PROBLEM_MEDIA_TYPE: {"schema": PROBLEM_SCHEMA}}},
+    "5XX": {"description": "Problem details (RFC 9457)", "content": {PROBLEM_MEDIA_TYPE: {"schema": PROBLEM_SCHEMA}}},
+}
+
+
+def create_app(
+    settings: Settings | None = None, *, dispatcher: Dispatcher | None = None, engine: Engine | None = None
+) -> FastAPI:
+    """Build the API. `dispatcher` hands work to the workers (the CLI passes the Redis one); without it frames
+    are stored but nobody is told (NullDispatcher). `engine` defaults to one built from settings and disposed
+    when the app shuts down; a passed engine stays the caller's."""
+    settings = settings or get_settings()
+    owns_engine = engine is None
+    if engine is None:
+        engine = make_engine(settings.database_url, busy_timeout_s=settings.database_busy_timeout_s)
+    if dispatcher is None:
+        log.info("no dispatcher given: frames are stored but no worker is notified")
+        dispatcher = NullDispatcher()
+
+    @asynccontextmanager
+    async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
+        yield
+        if owns_engine:
+            engine.dispose()
+
+    app = FastAPI(
+        title="posemetry",
+        version=__version__,
+        description=DESCRIPTION,
+        lifespan=lifespan,
+        responses=PROBLEM_RESPONSES,
+    )
+    app.state.settings = settings
+    app.state.engine = engine
+    app.state.session_factory = make_session_factory(engine)
+    app.state.dispatcher = dispatcher
+    install_handlers(app)
+    app.add_middleware(BodyGuard, max_body_bytes=settings.max_body_bytes)
+    for module in (cameras, frames, calibration, distances, violations, health):
+        app.include_router(module.router)
+    return app

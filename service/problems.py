@@ -1,0 +1,214 @@
+"""RFC 9457 problem details: every error the API returns is `application/problem+json` with a useful `detail`.
+
+Clients are camera systems and scripts; they need a machine-readable status, a stable `type` to branch on, a
+sentence a person can act on, and, for validation errors, the location of each bad field. Bad input must never
+surface as a 500, so validation errors, malformed JSON, unknown routes and oversize or non-JSON bodies are all
+turned into 4xx problems here, and the body guard rejects what should not be parsed at all before parsing.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Sequence
+from http import HTTPStatus
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.encoders import jsonable_encoder
+from fastapi.exceptions import RequestValidationError
+from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.responses import JSONResponse
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+PROBLEM_MEDIA_TYPE = "application/problem+json"
+TYPE_BASE = "https://posemetry.dev/problems/"
+log = logging.getLogger(__name__)
+
+
+class ProblemError(Exception):
+    """Raise from a handler to answer with a problem document (`kind` becomes the `type` URI's last segment)."""
+
+    def __init__(self, status: int, kind: str, detail: str, **extensions: Any) -> None:
+        super().__init__(detail)
+        self.status = status
+        self.kind = kind
+        self.detail = detail
+        self.extensions = extensions
+
+
+def problem_body(status: int, kind: str, detail: str, instance: str | None = None, **extensions: Any) -> dict[str, Any]:
+    body: dict[str, Any] = {
+        "type": TYPE_BASE + kind,
+        "title": HTTPStatus(status).phrase,
+        "status": status,
+        "detail": detail,
+    }
+    if instance is not None:
+        body["instance"] = instance
+    body.update(jsonable_encoder(extensions))
+    return body
+
+
+def problem_response(
+    status: int,
+    kind: str,
+    detail: str,
+    instance: str | None = None,
+    headers: dict[str, str] | None = None,
+    **extensions: Any,
+) -> JSONResponse:
+    return JSONResponse(
+        problem_body(status, kind, detail, instance, **extensions),
+        status_code=status,
+        media_type=PROBLEM_MEDIA_TYPE,
+        headers=headers,
+    )
+
+
+def _location(loc: Sequence[int | str]) -> str:
+    """body.people[3].keypoints[16][2]: a path a person can find in their JSON."""
+    text = ""
+    for part in loc:
+        text += f"[{part}]" if isinstance(part, int) else (f".{part}" if text else str(part))
+    return text
+
+
+def field_errors(errors: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Pydantic errors reduced to what a client can use: where, what, and the error's type code."""
+    return [
+        {
+            "loc": list(e.get("loc", ())),
+            "field": _location(e.get("loc", ())),
+            "msg": e.get("msg", ""),
+            "type": e["type"],
+        }
+        for e in errors
+    ]
+
+
+def validation_problem(errors: Sequence[dict[str, Any]], instance: str) -> JSONResponse:
+    """422 with every field error, or 400 when the body is not JSON at all."""
+    malformed = [e for e in errors if e.get("type") == "json_invalid"]
+    if malformed:
+        ctx = malformed[0].get("ctx") or {}
+        where = ", ".join(f"{k} {v}" for k, v in ctx.items() if k != "error")
+        reason = ctx.get("error", "invalid JSON")
+        detail = f"The request body is not valid JSON: {reason}" + (f" ({where})" if where else "")
+        return problem_response(400, "malformed-json", detail, instance)
+    fields = field_errors(errors)
+    first = fields[0]
+    more = f" (and {len(fields) - 1} more)" if len(fields) > 1 else ""
+    detail = f"Invalid request: {first['field'] or 'body'}: {first['msg']}{more}"
+    return problem_response(422, "validation-error", detail, instance, errors=fields)
+
+
+def install_handlers(app: FastAPI) -> None:
+    """Route every error through problem documents."""
+
+    @app.exception_handler(ProblemError)
+    async def _problem(request: Request, exc: ProblemError) -> JSONResponse:
+        return problem_response(exc.status, exc.kind, exc.detail, request.url.path, **exc.extensions)
+
+    @app.exception_handler(RequestValidationError)
+    async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:
+        return validation_problem(exc.errors(), request.url.path)
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
+        kinds = {404: "not-found", 405: "method-not-allowed"}
+        detail = exc.detail if isinstance(exc.detail, str) else json.dumps(exc.detail)
+        if exc.status_code == 404 and detail == "Not Found":
+            detail = f"No such resource: {request.url.path}"
+        if exc.status_code == 405:
+            detail = f"{request.method} is not allowed on {request.url.path}"
+        return problem_response(
+            exc.status_code, kinds.get(exc.status_code, "http-error"), detail, request.url.path, headers=exc.headers
+        )
+
+    @app.exception_handler(Exception)
+    async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
+        log.exception("unhandled error on %s %s", request.method, request.url.path)
+        return problem_response(500, "internal-error", "An unexpected error occurred; it has been logged.")
+
+
+def _is_json(content_type: str) -> bool:
+    media = content_type.split(";", 1)[0].strip().lower()
+    return media == "application/json" or (media.startswith("application/") and media.endswith("+json"))
+
+
+class BodyGuard:
+    """Pure ASGI middleware: refuses oversize and non-JSON bodies before anything parses them.
+
+    Content-Length is checked first (cheap rejection of honest clients); the body is then read here, counting
+    bytes as they stream, so a chunked or lying client is cut off at `max_body_bytes` too. The body is
+    buffered (it is at most `max_body_bytes`) and replayed to the application.
+    """
+
+    def __init__(self, app: ASGIApp, max_body_bytes: int) -> None:
+        self.app = app
+        self.max_body_bytes = max_body_bytes
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http" or scope["method"] not in ("POST", "PUT", "PATCH"):
+            await self.app(scope, receive, send)
+            return
+        headers = {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope["headers"]}
+        path = scope.get("path", "")
+        declared = headers.get("content-length")
+        if declared is not None:
+            try:
+                declared_bytes = int(declared)
+            except ValueError:
+                await self._reply(scope, receive, send, 400, "bad-request", "Content-Length is not a number.")
+                return
+            if declared_bytes > self.max_body_bytes:
+                await self._too_large(scope, receive, send)
+                return
+        chunks: list[bytes] = []
+        size = 0
+        more = True
+        while more:
+            message = await receive()
+            if message["type"] == "http.disconnect":
+                return
+            chunk = message.get("body", b"")
+            size += len(chunk)
+            if size > self.max_body_bytes:
+                await self._too_large(scope, receive, send)
+                return
+            chunks.append(chunk)
+            more = message.get("more_body", False)
+        body = b"".join(chunks)
+        if body and not _is_json(headers.get("content-type", "")):
+            given = headers.get("content-type") or "none"
+            detail = f"Request bodies must be JSON (Content-Type: application/json); got {given} for {path}."
+            await self._reply(scope, receive, send, 415, "unsupported-media-type", detail)
+            return
+        replayed = False
+
+        async def replay() -> Message:
+            nonlocal replayed
+            if not replayed:
+                replayed = True
+                return {"type": "http.request", "body": body, "more_body": False}
+            return await receive()
+
+        await self.app(scope, replay, send)
+
+    async def _too_large(self, scope: Scope, receive: Receive, send: Send) -> None:
+        detail = f"The request body exceeds the limit of {self.max_body_bytes} bytes (setting max_body_bytes)."
+        await self._reply(scope, receive, send, 413, "body-too-large", detail, headers={"Connection": "close"})
+
+    @staticmethod
+    async def _reply(
+        scope: Scope,
+        receive: Receive,
+        send: Send,
+        status: int,
+        kind: str,
+        detail: str,
+        headers: dict[str, str] | None = None,
+    ) -> None:
+        response = problem_response(status, kind, detail, scope.get("path"), headers=headers)
+        await response(scope, receive, send)

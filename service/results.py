@@ -1,0 +1,171 @@
+"""A frame's result (positions, pair distances, violations) from its people and a stored calibration.
+
+Shared by the synchronous `POST .../distances` endpoint and the frame-processing worker, so that a frame's
+stored result and an on-demand measurement of the same people are computed by the same code. No I/O: the
+caller reads the calibration and the people from the store and writes the result back (`process_frame` does
+exactly that for the worker, in the caller's transaction).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from sqlalchemy.orm import Session
+
+from service.geometry import Calibration, Uncertainty, measure
+from service.schemas import FrameResult, PairDistance, PersonPosition, finite_or_none
+from service.store import repository
+from service.store.models import CalibrationVersion, Camera, Frame, Observation
+from service.store.repository import PersonIn, ViolationIn
+
+Point = tuple[float, float]
+_NAN_POINT = (math.nan, math.nan)
+
+
+@dataclass(frozen=True)
+class FrameComputation:
+    """What measuring a frame produced: the JSON-ready result and the violation rows for the store."""
+
+    result: FrameResult
+    violations: list[ViolationIn]
+
+    def result_json(self) -> dict[str, Any]:
+        """The result as stored in `frames.result` (plain JSON, no NaN)."""
+        return self.result.model_dump(mode="json")
+
+
+def calibration_from_version(version: CalibrationVersion, image_size_px: tuple[int, int]) -> Calibration:
+    """The geometry's Calibration for a stored version, enough for `measure` (per-person arrays are empty).
+
+    The stored covariance is the geometry's canonical 5x5 one; a version without a complete covariance gets no
+    Uncertainty, so distances then carry keypoint noise only (its noise estimate is passed to measure separately).
+    """
+    if version.status != "ok" or None in (version.fx_px, version.fy_px, version.cx_px, version.cy_px, version.rho_m):
+        raise ValueError(f"calibration version {version.version} has no solved camera (status {version.status})")
+    uncertainty = None
+    cov = version.covariance
+    if cov is not None and all(v is not None for row in cov for v in row):
+        uncertainty = Uncertainty(
+            fx_px=version.fx_std_px or 0.0,
+            fy_px=version.fy_std_px or 0.0,
+            normal_deg=version.normal_std_deg or 0.0,
+            rho_m=version.rho_std_m or 0.0,
+            covariance=np.asarray(cov, dtype=float),
+            noise_px=version.noise_px or 0.0,
+        )
+    normal = np.array([version.normal_x, version.normal_y, version.normal_z], dtype=float)
+    return Calibration(
+        fx=float(version.fx_px),  # type: ignore[arg-type]
+        fy=float(version.fy_px),  # type: ignore[arg-type]
+        cx=float(version.cx_px),  # type: ignore[arg-type]
+        cy=float(version.cy_px),  # type: ignore[arg-type]
+        normal=normal / np.linalg.norm(normal),
+        rho=float(version.rho_m),  # type: ignore[arg-type]
+        image_size=(float(image_size_px[0]), float(image_size_px[1])),
+        height_m=float(version.person_height_m),
+        points_bottom=np.zeros((0, 3)),
+        points_top=np.zeros((0, 3)),
+        heights=np.zeros(0),
+        inliers=np.zeros(0, dtype=bool),
+        uncertainty=uncertainty,
+        distortion_k=float(version.distortion_k or 0.0),
+    )
+
+
+def _points(person: Observation | PersonIn) -> tuple[Point | None, Point | None]:
+    """(shoulder, ankle) pixels of a stored observation or of a not-yet-stored person."""
+    if isinstance(person, PersonIn):
+        return person.shoulder_px, person.ankle_px
+    shoulder = None if person.shoulder_x_px is None else (person.shoulder_x_px, person.shoulder_y_px)
+    ankle = None if person.ankle_x_px is None else (person.ankle_x_px, person.ankle_y_px)
+    return shoulder, ankle  # type: ignore[return-value]
+
+
+def _ground_axes(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(right, forward) unit vectors on the ground: the viewing direction projected onto it, and its right."""
+    forward = np.array([0.0, 0.0, 1.0]) - normal[2] * normal
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, normal)
+    return right, forward
+
+
+def compute_frame_result(
+    people: Sequence[Observation | PersonIn],
+    calibration: CalibrationVersion,
+    *,
+    image_size_px: tuple[int, int],
+    distance_threshold_m: float,
+) -> FrameComputation:
+    """Place every person (ankles when seen, else shoulders), measure all pairs i < j, and flag violations.
+
+    A pair is a violation when its distance is strictly below `distance_threshold_m`; pairs involving a person
+    who could not be placed (no shoulder and no ankle, or a ray missing the ground) have null distances and are
+    never violations.
+    """
+    cal = calibration_from_version(calibration, image_size_px)
+    points = [_points(person) for person in people]
+    tops = np.array([s if s is not None else _NAN_POINT for s, _ in points], dtype=float).reshape(-1, 2)
+    bottoms = np.array([a if a is not None else _NAN_POINT for _, a in points], dtype=float).reshape(-1, 2)
+    n = len(points)
+    if n:
+        m = measure(cal, tops, bottoms, noise_px=calibration.noise_px or 0.0)
+        positions, distances, stds = m.points_bottom, m.distances_m, m.distance_std_m
+    else:
+        positions, distances, stds = np.zeros((0, 3)), np.zeros((0, 0)), np.zeros((0, 0))
+    foot = -cal.rho * cal.normal  # the point on the ground straight below the camera
+    right, forward = _ground_axes(cal.normal)
+    placed_people = []
+    for index in range(n):
+        x = positions[index]
+        placed = bool(np.all(np.isfinite(x)))
+        source = None
+        if placed:
+            source = "ankles" if points[index][1] is not None else "shoulders"
+        placed_people.append(
+            PersonPosition(
+                index=index,
+                placed_from=source,
+                ground_m=(float((x - foot) @ right), float((x - foot) @ forward)) if placed else None,
+                point_m=(float(x[0]), float(x[1]), float(x[2])) if placed else None,
+            )
+        )
+    pairs: list[PairDistance] = []
+    violations: list[ViolationIn] = []
+    for i in range(n):
+        for j in range(i + 1, n):
+            distance_m = finite_or_none(distances[i, j])
+            std_m = finite_or_none(stds[i, j]) if distance_m is not None else None
+            pairs.append(PairDistance(i=i, j=j, distance_m=distance_m, distance_std_m=std_m))
+            if distance_m is not None and distance_m < distance_threshold_m:
+                violations.append(ViolationIn(person_i=i, person_j=j, distance_m=distance_m, distance_std_m=std_m))
+    result = FrameResult(
+        calibration_version=calibration.version,
+        distance_threshold_m=distance_threshold_m,
+        people=placed_people,
+        pairs=pairs,
+        violations=[p for p in pairs if p.distance_m is not None and p.distance_m < distance_threshold_m],
+    )
+    return FrameComputation(result=result, violations=violations)
+
+
+def process_frame(session: Session, frame: Frame, camera: Camera, calibration: CalibrationVersion) -> Frame:
+    """Measure a stored frame with `calibration` and store its result and violation events (no commit).
+
+    The worker's whole job for one frame once it has loaded these rows; recomputing a frame after a newer
+    calibration replaces its result and its violation events rather than adding to them.
+    """
+    computation = compute_frame_result(
+        repository.frame_observations(session, frame.id),
+        calibration,
+        image_size_px=(camera.image_width_px, camera.image_height_px),
+        distance_threshold_m=camera.distance_threshold_m,
+    )
+    frame = repository.set_frame_result(
+        session, frame.id, status="done", result=computation.result_json(), calibration_version=calibration.version
+    )
+    repository.record_violations(session, frame, computation.violations)
+    return frame

@@ -1,0 +1,1 @@
+"""The v1 HTTP routes, one module per resource; handlers stay thin (validate, call the repository, commit, nudge)."""

@@ -1,0 +1,182 @@
+"""A camera's calibration: status, history, forced re-solve and reset."""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated
+
+from fastapi import APIRouter, Query, status
+from sqlalchemy.orm import Session
+
+from service.dispatch import UNAVAILABLE_ERRORS
+from service.schemas import (
+    CalibrationHistory,
+    CalibrationRequested,
+    CalibrationStatus,
+    CalibrationUncertainty,
+    CalibrationVersionOut,
+)
+from service.settings import Settings
+from service.store import repository
+from service.store.models import CalibrationVersion, Camera
+
+from .common import (
+    CameraIdPath,
+    DispatcherDep,
+    SessionDep,
+    SettingsDep,
+    camera_url,
+    nudge_best_effort,
+    queue_unavailable,
+    require_camera,
+)
+
+router = APIRouter(prefix="/v1/cameras", tags=["calibration"])
+
+
+def _normal(version: CalibrationVersion) -> tuple[float, float, float] | None:
+    if version.normal_x is None or version.normal_y is None or version.normal_z is None:
+        return None
+    return (version.normal_x, version.normal_y, version.normal_z)
+
+
+def _uncertainty(version: CalibrationVersion) -> CalibrationUncertainty:
+    return CalibrationUncertainty(
+        fx_std_px=version.fx_std_px,
+        fy_std_px=version.fy_std_px,
+        normal_std_deg=version.normal_std_deg,
+        rho_std_m=version.rho_std_m,
+        noise_px=version.noise_px,
+    )
+
+
+def version_out(version: CalibrationVersion) -> CalibrationVersionOut:
+    return CalibrationVersionOut(
+        version=version.version,
+        status=version.status,  # type: ignore[arg-type]
+        reason=version.reason,
+        is_current=version.is_current,
+        forced=version.forced,
+        fx_px=version.fx_px,
+        fy_px=version.fy_px,
+        cx_px=version.cx_px,
+        cy_px=version.cy_px,
+        normal=_normal(version),
+        rho_m=version.rho_m,
+        uncertainty=_uncertainty(version),
+        person_height_m=version.person_height_m,
+        people_used=version.people_used,
+        inliers=version.inliers,
+        evidence_count=version.evidence_count,
+        duration_s=version.duration_s,
+        created_at=version.created_at,
+    )
+
+
+def people_needed(camera: Camera, settings: Settings) -> int:
+    """Usable people still missing before the next solve is due (the rule of repository.calibration_due)."""
+    if camera.evidence_at_last_solve <= 0:
+        target = settings.calibration_min_people
+    else:
+        target = max(
+            settings.calibration_min_people,
+            math.ceil(settings.calibration_growth_factor * camera.evidence_at_last_solve),
+        )
+    return max(0, target - camera.usable_evidence_count)
+
+
+def calibration_status(session: Session, camera: Camera, settings: Settings) -> CalibrationStatus:
+    current = repository.current_calibration(session, camera.id)
+    latest = repository.calibration_history(session, camera.id, limit=1)
+    last_failure = latest[0].reason if latest and latest[0].status == "failed" else None
+    needed = people_needed(camera, settings)
+    if current is not None:
+        state = "calibrated"
+    elif needed == 0:
+        state = "calibrating"
+    else:
+        state = "uncalibrated"
+    fields = {
+        "camera_id": camera.id,
+        "status": state,
+        "people_needed": needed,
+        "evidence_count": camera.usable_evidence_count,
+        "last_failure": last_failure,
+    }
+    if current is None:
+        empty = dict.fromkeys(
+            ("version", "fx_px", "fy_px", "cx_px", "cy_px", "normal", "rho_m", "uncertainty", "person_height_m",
+             "people_used", "inliers", "solved_evidence_count", "updated_at"),
+        )  # fmt: skip
+        return CalibrationStatus(**fields, **empty)
+    return CalibrationStatus(
+        **fields,
+        version=current.version,
+        fx_px=current.fx_px,
+        fy_px=current.fy_px,
+        cx_px=current.cx_px,
+        cy_px=current.cy_px,
+        normal=_normal(current),
+        rho_m=current.rho_m,
+        uncertainty=_uncertainty(current),
+        person_height_m=current.person_height_m,
+        people_used=current.people_used,
+        inliers=current.inliers,
+        solved_evidence_count=current.evidence_count,
+        updated_at=current.created_at,
+    )
+
+
+@router.get("/{camera_id}/calibration", response_model=CalibrationStatus)
+def get_calibration(camera_id: CameraIdPath, session: SessionDep, settings: SettingsDep) -> CalibrationStatus:
+    """The current calibration, or how much more evidence the camera needs."""
+    return calibration_status(session, require_camera(session, camera_id), settings)
+
+
+@router.get("/{camera_id}/calibration/history", response_model=CalibrationHistory)
+def get_calibration_history(
+    camera_id: CameraIdPath,
+    session: SessionDep,
+    limit: Annotated[int, Query(ge=1, le=1000, description="Versions per page.")] = 100,
+    before: Annotated[int | None, Query(ge=1, description="Last version of the previous page.")] = None,
+) -> CalibrationHistory:
+    """Every solve, newest first, failed ones included (with their reason)."""
+    require_camera(session, camera_id)
+    versions = repository.calibration_history(session, camera_id, limit=limit, before_version=before)
+    next_before = versions[-1].version if len(versions) == limit else None
+    return CalibrationHistory(items=[version_out(v) for v in versions], next_before=next_before)
+
+
+@router.post("/{camera_id}/calibration", status_code=status.HTTP_202_ACCEPTED, response_model=CalibrationRequested)
+def request_calibration(
+    camera_id: CameraIdPath, session: SessionDep, dispatcher: DispatcherDep
+) -> CalibrationRequested:
+    """Force a re-solve now: its result becomes current even if less well supported than the current one."""
+    require_camera(session, camera_id)
+    session.rollback()  # release the read transaction before talking to the queue
+    try:
+        dispatcher.calibration_requested(camera_id, forced=True)
+    except UNAVAILABLE_ERRORS as exc:
+        raise queue_unavailable("retry the request later.", exc) from exc
+    return CalibrationRequested(camera_id=camera_id, forced=True, url=f"{camera_url(camera_id)}/calibration")
+
+
+@router.delete("/{camera_id}/calibration", response_model=CalibrationStatus)
+def reset_calibration(
+    camera_id: CameraIdPath,
+    session: SessionDep,
+    settings: SettingsDep,
+    dispatcher: DispatcherDep,
+    drop_evidence: Annotated[
+        bool, Query(description="Also forget the stored people (the camera moved or its view changed).")
+    ] = False,
+) -> CalibrationStatus:
+    """Make the camera uncalibrated (history is kept); with stored evidence, a fresh solve is requested."""
+    camera = require_camera(session, camera_id)
+    repository.reset_calibration(session, camera_id, drop_evidence=drop_evidence)
+    session.commit()
+    result = calibration_status(session, camera, settings)
+    session.commit()
+    if result.status == "calibrating":
+        nudge_best_effort("request a solve after reset", dispatcher.calibration_requested, camera_id, forced=False)
+    return result

@@ -1,0 +1,132 @@
+"""Dependencies and checks shared by the routers: the per-request session, settings, dispatcher and camera."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterator, Sequence
+from typing import Annotated, Any
+
+from fastapi import Depends, Path, Request
+from sqlalchemy.orm import Session
+
+from service.dispatch import UNAVAILABLE_ERRORS, Dispatcher
+from service.keypoints import person_from_centres, person_from_keypoints
+from service.problems import ProblemError, field_errors
+from service.schemas import CAMERA_ID_PATTERN, PersonObservation
+from service.settings import Settings
+from service.store import repository
+from service.store.models import Camera
+from service.store.repository import PersonIn
+
+# Keypoints may lie somewhat outside the image (pose models extrapolate cut-off limbs), but not absurdly far:
+# anything beyond half an image width/height past an edge is a unit or coordinate-system mistake.
+COORDINATE_MARGIN_FRACTION = 0.5
+log = logging.getLogger(__name__)
+
+CameraIdPath = Annotated[
+    str,
+    Path(
+        pattern=CAMERA_ID_PATTERN,
+        description="The camera's id: 1-64 characters, letters, digits, '.', '_' and '-', starting with a "
+        "letter or digit.",
+        examples=["lobby-1"],
+    ),
+]
+
+
+def get_session(request: Request) -> Iterator[Session]:
+    """One session per request; the handler commits its unit of work, anything uncommitted is rolled back."""
+    with request.app.state.session_factory() as session:
+        yield session
+
+
+def get_settings(request: Request) -> Settings:
+    return request.app.state.settings  # type: ignore[no-any-return]
+
+
+def get_dispatcher(request: Request) -> Dispatcher:
+    return request.app.state.dispatcher  # type: ignore[no-any-return]
+
+
+SessionDep = Annotated[Session, Depends(get_session)]
+SettingsDep = Annotated[Settings, Depends(get_settings)]
+DispatcherDep = Annotated[Dispatcher, Depends(get_dispatcher)]
+
+
+def camera_url(camera_id: str) -> str:
+    return f"/v1/cameras/{camera_id}"
+
+
+def require_camera(session: Session, camera_id: str) -> Camera:
+    camera = repository.get_camera(session, camera_id)
+    if camera is None:
+        raise ProblemError(
+            404, "camera-not-found", f"No camera {camera_id!r}: create it with PUT {camera_url(camera_id)}."
+        )
+    return camera
+
+
+def queue_unavailable(action: str, exc: BaseException, **extensions: Any) -> ProblemError:
+    """503 for work that needs the queue; what the request stored stays stored."""
+    return ProblemError(503, "queue-unavailable", f"The work queue is unreachable ({exc}); {action}", **extensions)
+
+
+def nudge_best_effort(action: str, call: Any, *args: Any, **kwargs: Any) -> None:
+    """A nudge whose loss is harmless (the next frame nudges again): logged, never an error for the client."""
+    try:
+        call(*args, **kwargs)
+    except UNAVAILABLE_ERRORS as exc:
+        log.warning("could not %s: %s", action, exc)
+
+
+def _outside(value: float, size_px: int) -> bool:
+    margin = COORDINATE_MARGIN_FRACTION * size_px
+    return value < -margin or value > size_px + margin
+
+
+def people_for_camera(people: Sequence[PersonObservation], camera: Camera, settings: Settings) -> list[PersonIn]:
+    """Posted people as store rows, after the checks that need the camera and the settings.
+
+    Too many people is 413 (settings.max_people_per_frame). Coordinates more than half an image beyond an edge
+    are 422 with each bad field's location; keypoints with score 0 are exempt, since pose models put
+    placeholder coordinates on joints they did not find.
+    """
+    if len(people) > settings.max_people_per_frame:
+        raise ProblemError(
+            413,
+            "too-many-people",
+            f"{len(people)} people in one frame; at most {settings.max_people_per_frame} are accepted "
+            "(setting max_people_per_frame).",
+        )
+    size = (camera.image_width_px, camera.image_height_px)
+    errors: list[dict[str, Any]] = []
+
+    def check(loc: list[Any], x: float, y: float) -> None:
+        if _outside(x, size[0]) or _outside(y, size[1]):
+            errors.append(
+                {
+                    "loc": ["body", "people", *loc],
+                    "msg": f"point ({x:g}, {y:g}) px is far outside the camera's {size[0]}x{size[1]} image",
+                    "type": "coordinate_out_of_image",
+                }
+            )
+
+    rows = []
+    for index, person in enumerate(people):
+        if person.keypoints is not None:
+            for k, (x, y, score) in enumerate(person.keypoints):
+                if score > 0:
+                    check([index, "keypoints", k], x, y)
+            rows.append(person_from_keypoints(person.keypoints, size))
+        else:
+            for name in ("shoulder", "ankle"):
+                point = getattr(person, name)
+                if point is not None:
+                    check([index, name], *point)
+            rows.append(person_from_centres(person.shoulder, person.ankle, size))
+    if errors:
+        fields = field_errors(errors)
+        more = f" (and {len(fields) - 1} more)" if len(fields) > 1 else ""
+        detail = f"Invalid request: {fields[0]['field']}: {fields[0]['msg']}{more}"
+        raise ProblemError(422, "validation-error", detail, errors=fields)
+    return rows

@@ -1,0 +1,345 @@
+"""Request and response bodies of the v1 HTTP API (pydantic v2): the wire contract of issue 3.
+
+Requests are strict because everything a client posts ends up as calibration evidence: unknown fields are
+refused (a typo such as `anklee` would otherwise silently drop a person's ankle), numbers must be finite (Python's
+JSON parser accepts `NaN` and `Infinity`, and `1e999` overflows to infinity), scores lie in [0, 1], and a COCO-17
+person has exactly 17 keypoints. Checks that need the camera (coordinates within a margin of its image) or the
+settings (people per frame) happen in the routers, which report them in the same error format.
+
+Names carry units (`_px`, `_m`, `_deg`, `_s`) so that a client never has to guess one.
+"""
+
+from __future__ import annotations
+
+import math
+import uuid
+from datetime import datetime
+from typing import Annotated, Literal
+
+from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from service.geometry import DEFAULT_HEIGHT_M
+
+CAMERA_ID_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$"
+CLIENT_FRAME_ID_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._:-]{0,127}$"
+COCO_KEYPOINTS = 17
+METRES_PER_FOOT = 0.3048
+MAX_IMAGE_SIDE_PX = 100_000
+
+FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+Score = Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)]
+PointPx = tuple[FiniteFloat, FiniteFloat]
+Keypoint = tuple[FiniteFloat, FiniteFloat, Score]
+CameraId = Annotated[str, Field(pattern=CAMERA_ID_PATTERN, examples=["lobby-1"])]
+
+
+class StrictModel(BaseModel):
+    """Base of every request body: unknown fields are an error, not silently ignored."""
+
+    model_config = ConfigDict(extra="forbid")
+
+
+# --------------------------------------------------------------------------------------------------- cameras
+
+
+class DistanceThreshold(StrictModel):
+    """A distance with its unit, because social-distancing rules are written in feet in some places, metres in
+    others; the service stores and reports metres."""
+
+    value: float = Field(gt=0, le=1000, allow_inf_nan=False, description="The threshold in `unit`.")
+    unit: Literal["m", "ft"] = Field(description="`m` (metres) or `ft` (international feet, 0.3048 m).")
+
+    @property
+    def metres(self) -> float:
+        return self.value * METRES_PER_FOOT if self.unit == "ft" else self.value
+
+
+DEFAULT_DISTANCE_THRESHOLD = DistanceThreshold(value=6, unit="ft")
+
+
+class CameraSettings(StrictModel):
+    """What a client tells the service about one fixed camera (`PUT /v1/cameras/{camera_id}`)."""
+
+    image_width_px: int = Field(gt=0, le=MAX_IMAGE_SIDE_PX, description="Width of the camera's images in pixels.")
+    image_height_px: int = Field(gt=0, le=MAX_IMAGE_SIDE_PX, description="Height of the camera's images in pixels.")
+    person_height_m: float = Field(
+        default=DEFAULT_HEIGHT_M,
+        ge=0.3,
+        le=2.5,
+        allow_inf_nan=False,
+        description="Mean height from ankle centre to shoulder centre of the people this camera sees, in metres. "
+        f"The default {DEFAULT_HEIGHT_M} m is an adult average (about 0.78 of stature); it sets the metric scale.",
+    )
+    equal_focal: bool = Field(
+        default=True, description="Assume square pixels (fx = fy); true for almost every modern camera."
+    )
+    distance_threshold: DistanceThreshold = Field(
+        default=DEFAULT_DISTANCE_THRESHOLD,
+        description="Pairs of people closer than this are violations. Default 6 ft (1.8288 m).",
+    )
+    known_focal_px: float | None = Field(
+        default=None,
+        gt=0,
+        le=1e6,
+        allow_inf_nan=False,
+        description="The focal length in pixels if known (then only the ground plane is solved).",
+    )
+
+
+class CameraOut(BaseModel):
+    """A configured camera with the evidence gathered so far."""
+
+    id: str
+    image_width_px: int
+    image_height_px: int
+    person_height_m: float
+    equal_focal: bool
+    distance_threshold_m: float
+    distance_threshold_ft: float
+    known_focal_px: float | None
+    usable_evidence_count: int = Field(description="Stored people usable as calibration evidence.")
+    created_at: datetime
+    updated_at: datetime
+    url: str
+
+
+class CameraList(BaseModel):
+    """One page of cameras in id order; pass `next_after` as `after` for the next page (null: last page)."""
+
+    items: list[CameraOut]
+    next_after: str | None
+
+
+# --------------------------------------------------------------------------------------------------- frames
+
+
+class PersonObservation(StrictModel):
+    """One person: either COCO-17 `keypoints` (what pose models emit) or explicit `shoulder`/`ankle` centres."""
+
+    keypoints: list[Keypoint] | None = Field(
+        default=None,
+        description="COCO-17 keypoints in COCO order, each [x_px, y_px, score] with score in [0, 1].",
+    )
+    shoulder: PointPx | None = Field(default=None, description="Shoulder centre [x_px, y_px] (centres form).")
+    ankle: PointPx | None = Field(
+        default=None, description="Ankle centre [x_px, y_px] (centres form); null or absent when not visible."
+    )
+
+    @field_validator("keypoints", mode="before")
+    @classmethod
+    def _seventeen(cls, value: object) -> object:
+        """Say what COCO-17 means rather than pydantic's generic list-length message."""
+        if isinstance(value, list) and len(value) != COCO_KEYPOINTS:
+            raise ValueError(f"COCO-17 needs exactly {COCO_KEYPOINTS} keypoints [x, y, score], got {len(value)}")
+        return value
+
+    @model_validator(mode="after")
+    def _one_form(self) -> PersonObservation:
+        """A person is described one way only, so there is never a question of which points win."""
+        if self.keypoints is not None:
+            if self.shoulder is not None or self.ankle is not None:
+                raise ValueError("give either `keypoints` or `shoulder`/`ankle` centres, not both")
+        elif self.shoulder is None:
+            raise ValueError("a person needs `keypoints` (COCO-17) or at least a `shoulder` centre")
+        return self
+
+
+class KeypointFrame(StrictModel):
+    """One frame of one camera (`POST /v1/cameras/{camera_id}/keypoints`)."""
+
+    timestamp: AwareDatetime = Field(
+        description="When the frame was captured: RFC 3339 with a time zone, or Unix seconds.",
+        examples=["2026-01-01T12:00:00Z"],
+    )
+    frame_id: str | None = Field(
+        default=None,
+        pattern=CLIENT_FRAME_ID_PATTERN,
+        description="The client's id for this frame: posting the same id again is a retry of the same frame.",
+    )
+    people: list[PersonObservation] = Field(description="The people detected in the frame (may be empty).")
+
+
+class DistanceRequest(StrictModel):
+    """People to measure with the camera's current calibration (`POST /v1/cameras/{camera_id}/distances`)."""
+
+    people: list[PersonObservation]
+
+
+class FrameAccepted(BaseModel):
+    """The answer to a posted frame: where its result will appear."""
+
+    frame_id: uuid.UUID
+    client_frame_id: str | None
+    status: Literal["pending", "done", "failed"]
+    people: int
+    created: bool = Field(description="False when this was a retry of a frame already stored.")
+    url: str
+
+
+class PersonPosition(BaseModel):
+    """Where one person stands.
+
+    `ground_m` is [right, forward] on the ground plane from the point straight below the camera: `forward`
+    along the camera's viewing direction projected onto the ground, `right` to its right. `point_m` is the
+    same point in the camera frame (x right, y down, z forward). Null when the person could not be placed.
+    """
+
+    index: int
+    placed_from: Literal["ankles", "shoulders"] | None
+    ground_m: tuple[float, float] | None
+    point_m: tuple[float, float, float] | None
+
+
+class PairDistance(BaseModel):
+    """Distance between two people of a frame (indices into `people`, i < j), with its 1-sigma uncertainty."""
+
+    i: int
+    j: int
+    distance_m: float | None
+    distance_std_m: float | None
+
+
+class FrameResult(BaseModel):
+    """Positions, every pair's distance and the pairs closer than the camera's threshold."""
+
+    calibration_version: int
+    distance_threshold_m: float
+    people: list[PersonPosition]
+    pairs: list[PairDistance]
+    violations: list[PairDistance]
+
+
+class FrameOut(BaseModel):
+    """A stored frame: `pending` until a calibration exists and a worker has measured it."""
+
+    frame_id: uuid.UUID
+    camera_id: str
+    client_frame_id: str | None
+    timestamp: datetime
+    received_at: datetime
+    status: Literal["pending", "done", "failed"]
+    people: int
+    calibration_version: int | None
+    processed_at: datetime | None
+    error: str | None
+    result: FrameResult | None
+
+
+# --------------------------------------------------------------------------------------------------- calibration
+
+
+class CalibrationUncertainty(BaseModel):
+    """1-sigma uncertainties of a solve."""
+
+    fx_std_px: float | None
+    fy_std_px: float | None
+    normal_std_deg: float | None
+    rho_std_m: float | None
+    noise_px: float | None = Field(description="Keypoint noise estimated from the solve's residuals.")
+
+
+class CalibrationVersionOut(BaseModel):
+    """One solve of a camera, successful or not."""
+
+    version: int
+    status: Literal["ok", "failed"]
+    reason: str | None
+    is_current: bool
+    forced: bool
+    fx_px: float | None
+    fy_px: float | None
+    cx_px: float | None
+    cy_px: float | None
+    normal: tuple[float, float, float] | None = Field(description="Unit ground normal in the camera frame, up.")
+    rho_m: float | None = Field(description="Camera height above the ground plane.")
+    uncertainty: CalibrationUncertainty
+    person_height_m: float
+    people_used: int
+    inliers: int
+    evidence_count: int = Field(description="Usable people stored when this solve ran.")
+    duration_s: float | None
+    created_at: datetime
+
+
+class CalibrationStatus(BaseModel):
+    """A camera's calibration state (`GET /v1/cameras/{camera_id}/calibration`).
+
+    `uncalibrated`: no usable calibration yet and none due; `people_needed` says how many more usable people
+    (both shoulders and both ankles seen, not at the image border) must arrive before the next solve.
+    `calibrating`: enough evidence for a solve that has not produced a current calibration yet.
+    `calibrated`: the fields below describe the current version.
+    """
+
+    camera_id: str
+    status: Literal["uncalibrated", "calibrating", "calibrated"]
+    people_needed: int = Field(description="More usable people needed before the next solve (0 when due).")
+    evidence_count: int = Field(description="Usable people stored for this camera now.")
+    version: int | None
+    fx_px: float | None
+    fy_px: float | None
+    cx_px: float | None
+    cy_px: float | None
+    normal: tuple[float, float, float] | None
+    rho_m: float | None
+    uncertainty: CalibrationUncertainty | None
+    person_height_m: float | None
+    people_used: int | None
+    inliers: int | None
+    solved_evidence_count: int | None = Field(description="Usable people stored when the current version ran.")
+    last_failure: str | None = Field(description="Why the latest solve failed, when it did.")
+    updated_at: datetime | None
+
+
+class CalibrationHistory(BaseModel):
+    """Versions newest first; pass `next_before` as `before` for the next page (null: last page)."""
+
+    items: list[CalibrationVersionOut]
+    next_before: int | None
+
+
+class CalibrationRequested(BaseModel):
+    """The answer to a forced re-solve: it runs in a worker; poll the calibration for its outcome."""
+
+    camera_id: str
+    forced: bool
+    url: str
+
+
+# --------------------------------------------------------------------------------------------------- violations
+
+
+class ViolationBucketOut(BaseModel):
+    start: datetime
+    count: int
+
+
+class ViolationCounts(BaseModel):
+    """Violations per UTC-aligned time bucket in [since, until); empty buckets are omitted."""
+
+    camera_id: str
+    since: datetime
+    until: datetime
+    bucket: Literal["minute", "hour"]
+    bucket_s: int
+    total: int
+    buckets: list[ViolationBucketOut]
+
+
+# --------------------------------------------------------------------------------------------------- health
+
+
+class Health(BaseModel):
+    status: Literal["ok"]
+
+
+class Readiness(BaseModel):
+    status: Literal["ready"]
+    checks: dict[str, str]
+
+
+def finite_or_none(value: float | None) -> float | None:
+    """JSON has no NaN: unknown quantities (an unplaced person's distance) are reported as null."""
+    if value is None:
+        return None
+    value = float(value)
+    return value if math.isfinite(value) else None
