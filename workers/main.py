@@ -1,0 +1,110 @@
+"""The worker process: `posemetry worker --queue frames --queue calibration` (or `python -m workers.main`).
+
+On start, before taking any job, a worker re-enqueues every pending frame and requests a solve for every camera
+whose evidence calls for one. The API stores first and enqueues second, so anything accepted while Redis was
+down (or lost with a Redis that was wiped) is still in SQL; this start-up pass hands it to the queues again.
+Enqueueing is idempotent (deterministic frame job ids, per-camera calibration dedup), so every worker may do it
+and several workers starting together do not multiply work.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from rq import Queue, SimpleWorker, Worker
+
+from service.queue import QUEUES, RedisDispatcher, connect, redis_url, wait_for_redis
+from service.settings import Settings, get_settings
+from service.store.repository import calibration_due, list_cameras, pending_frames
+from workers import jobs
+
+log = logging.getLogger(__name__)
+
+# Cameras are read a page at a time; pending frames are read as one list of ids and enqueued in batches.
+_PAGE = 1000
+REDIS_START_TIMEOUT_S = 30.0
+
+
+@dataclass(frozen=True)
+class Requeued:
+    """What the start-up pass handed to the queues."""
+
+    frames: int
+    calibrations: int
+
+
+def requeue_pending(settings: Settings, dispatcher: RedisDispatcher) -> Requeued:
+    """Enqueue every pending frame and every camera's due calibration (idempotent: see the module docstring)."""
+    factory = jobs.session_factory(settings)
+    frames = 0
+    with factory() as session:
+        pending = [(frame.camera_id, frame.id) for frame in pending_frames(session)]
+    for start in range(0, len(pending), _PAGE):
+        frames += dispatcher.frames_pending(pending[start : start + _PAGE])
+    calibrations = 0
+    after: str | None = None
+    while True:
+        with factory() as session:
+            cameras = list_cameras(session, limit=_PAGE, after=after)
+            due = [
+                camera.id
+                for camera in cameras
+                if calibration_due(
+                    camera,
+                    min_people=settings.calibration_min_people,
+                    growth_factor=settings.calibration_growth_factor,
+                )
+            ]
+        for camera_id in due:
+            dispatcher.calibration_requested(camera_id, False)
+            calibrations += 1
+        if len(cameras) < _PAGE:
+            break
+        after = cameras[-1].id
+    return Requeued(frames=frames, calibrations=calibrations)
+
+
+def run_worker(
+    queues: Sequence[str] = QUEUES,
+    *,
+    settings: Settings | None = None,
+    burst: bool = False,
+    fork: bool = False,
+    name: str | None = None,
+) -> Requeued:
+    """Re-enqueue pending work, then serve `queues` (in priority order) until stopped (or drained, if burst).
+
+    Without `fork`, jobs run in the worker process itself (rq's SimpleWorker): a frame job takes milliseconds,
+    and forking a child per job would cost more than the job. `fork` isolates each job in a child process (a
+    crash or leak in one job cannot take the worker down) at that price.
+    """
+    settings = settings or get_settings()
+    jobs.preload()
+    connection = connect(redis_url(settings))
+    wait_for_redis(connection, timeout_s=REDIS_START_TIMEOUT_S)
+    requeued = requeue_pending(settings, RedisDispatcher(connection))
+    log.info("re-enqueued %d pending frames and %d due calibrations", requeued.frames, requeued.calibrations)
+    # Forked children must open their own database connections, never inherit the parent's.
+    jobs.dispose_engines()
+    worker_class = Worker if fork else SimpleWorker
+    worker = worker_class([Queue(queue, connection=connection) for queue in queues], connection=connection, name=name)
+    worker.work(burst=burst, logging_level="INFO")
+    return requeued
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    """`python -m workers.main`: the same as `posemetry worker`, for images that run modules rather than scripts."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--queue", action="append", choices=QUEUES, help="queue to serve (repeatable; default all)")
+    parser.add_argument("--burst", action="store_true", help="exit once the queues are empty")
+    parser.add_argument("--fork", action="store_true", help="run each job in a forked child process")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    run_worker(args.queue or QUEUES, burst=args.burst, fork=args.fork)
+
+
+if __name__ == "__main__":
+    main()
