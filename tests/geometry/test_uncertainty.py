@@ -42,7 +42,7 @@ def test_reported_sigmas_are_calibrated() -> None:
         m = measure(cal, s.tops_px, s.bottoms_px)
         t = pairwise_distances(s.points_bottom)
         iu = np.triu_indices(len(t), 1)
-        z_dist.append(((m.distances_m - t) / m.distance_std_m)[iu])
+        z_dist.append((m.distances_m[iu] - t[iu]) / m.distance_std_m[iu])
     within = [np.mean(np.abs(z) < 1) for z in (np.array(z_f), np.array(z_rho), np.concatenate(z_dist))]
     for frac in within:
         assert 0.5 < frac < 0.85, within
