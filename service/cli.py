@@ -6,7 +6,6 @@ Heavy imports (numpy, scipy, the geometry) happen inside the commands so that
 
 from __future__ import annotations
 
-import logging
 import os
 import signal
 import subprocess
@@ -111,6 +110,52 @@ def bench_geometry(
         raise typer.Exit(1)
 
 
+@bench_app.command("ingest")
+def bench_ingest(
+    seconds: float = typer.Option(20.0, min=1.0, help="Measured ingest time."),
+    concurrency: int = typer.Option(16, min=1, help="Client threads posting frames, each on its own connection."),
+    cameras: int = typer.Option(4, min=1, help="Cameras the frames are spread over."),
+    workers: int = typer.Option(2, min=1, help="Worker processes of the `posemetry serve` under test."),
+    payload: str = typer.Option("coco17", help="Person format: coco17 (17 keypoints) or centres (shoulder/ankle)."),
+    warmup: float = typer.Option(2.0, min=0.0, help="Unmeasured ingest before the measured run, in seconds."),
+    big: bool = typer.Option(False, "--big", help="Also time the calibration job at 10^6 stored observations."),
+    skip_ingest: bool = typer.Option(False, "--skip-ingest", help="Only the calibration-job timings."),
+    skip_calibration: bool = typer.Option(False, "--skip-calibration", help="Only the ingest figures."),
+    repeats: int = typer.Option(3, min=1, help="Calibration jobs timed per evidence size."),
+    seed: int = typer.Option(0, min=0, help="Seed of the simulated scenes."),
+) -> None:
+    """Keypoint-frame ingest throughput and latency of `posemetry serve`, and calibration-job time vs evidence."""
+    from service.bench.ingest import PAYLOADS, calibration_lines, ingest_lines, run_calibration, run_ingest
+    from service.settings import get_settings
+
+    if payload not in PAYLOADS:
+        raise typer.BadParameter(f"choose from {', '.join(PAYLOADS)}", param_hint="--payload")
+    log = Console(stderr=True)
+
+    def progress(message: str) -> None:
+        log.print(f"[dim]{message}[/dim]", highlight=False)
+
+    typer.echo(f"posemetry ingest benchmark ({os.cpu_count()} CPUs, Python {sys.version.split()[0]})")
+    if not skip_ingest:
+        result = run_ingest(
+            seconds=seconds,
+            concurrency=concurrency,
+            cameras=cameras,
+            workers=workers,
+            payload=payload,
+            seed=seed,
+            warmup_s=warmup,
+            progress=progress,
+        )
+        typer.echo(
+            "\n".join(ingest_lines(result, concurrency=concurrency, cameras=cameras, workers=workers, payload=payload))
+        )
+    if not skip_calibration:
+        sizes = [1_000, 100_000] + ([1_000_000] if big else [])
+        timings = run_calibration(sizes, repeats=repeats, seed=seed, progress=progress)
+        typer.echo("\n".join(calibration_lines(timings, get_settings().calibration_sample_cap)))
+
+
 @db_app.command("upgrade")
 def db_upgrade(
     revision: str = typer.Argument("head", help="Alembic revision to migrate to."),
@@ -179,11 +224,11 @@ def worker(
     fork: bool = typer.Option(False, "--fork", help="Run each job in a forked child (isolation at ~10 ms per job)."),
 ) -> None:
     """Run a worker: re-enqueue pending work, then process jobs (Redis and database from POSEMETRY_* settings)."""
-    from workers.main import run_worker
-
     queues = _check_queues(queue)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    run_worker(queues, burst=burst, fork=fork)
+    # Hand the process over to the workers package instead of importing it: service never imports workers.
+    argv = [sys.executable, "-m", "workers.main", *(arg for q in queues for arg in ("--queue", q))]
+    argv += ["--burst"] * burst + ["--fork"] * fork
+    os.execv(sys.executable, argv)
 
 
 @app.command("api")
