@@ -393,4 +393,3 @@ def wait_for_redis(connection: redis.Redis, *, timeout_s: float) -> None:
             if time.monotonic() >= deadline:
                 raise
             time.sleep(0.1)
-
