@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -49,7 +49,6 @@ class Calibration:
     refined: bool = False
     ransac_iterations: int = 0
     reprojection_rms_px: float = float("nan")
-    extras: dict[str, float] = field(default_factory=dict)
 
     @property
     def K(self) -> FloatArray:  # noqa: N802 - the conventional name of the intrinsic matrix
