@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from typing import Annotated
 
 from fastapi import APIRouter, Query, status
@@ -74,14 +73,10 @@ def version_out(version: CalibrationVersion) -> CalibrationVersionOut:
 
 
 def people_needed(camera: Camera, settings: Settings) -> int:
-    """Usable people still missing before the next solve is due (the rule of repository.calibration_due)."""
-    if camera.evidence_at_last_solve <= 0:
-        target = settings.calibration_min_people
-    else:
-        target = max(
-            settings.calibration_min_people,
-            math.ceil(settings.calibration_growth_factor * camera.evidence_at_last_solve),
-        )
+    """Usable people still missing before the next solve is due."""
+    target = repository.evidence_for_next_solve(
+        camera, min_people=settings.calibration_min_people, growth_factor=settings.calibration_growth_factor
+    )
     return max(0, target - camera.usable_evidence_count)
 
 

@@ -460,14 +460,17 @@ def usable_evidence_count(session: Session, camera_id: str) -> int:
     return int(count)
 
 
+def evidence_for_next_solve(camera: Camera, *, min_people: int, growth_factor: float) -> int:
+    """Usable evidence at which the next solve is due: min_people first, then growth_factor x the last solve's."""
+    if camera.evidence_at_last_solve <= 0:
+        return min_people
+    return max(min_people, math.ceil(growth_factor * camera.evidence_at_last_solve))
+
+
 def calibration_due(camera: Camera, *, min_people: int, growth_factor: float) -> bool:
     """Whether evidence warrants a solve: a first one at min_people, then each time it grows by growth_factor."""
-    evidence = camera.usable_evidence_count
-    if evidence < min_people:
-        return False
-    if camera.evidence_at_last_solve <= 0:
-        return True
-    return evidence >= growth_factor * camera.evidence_at_last_solve
+    target = evidence_for_next_solve(camera, min_people=min_people, growth_factor=growth_factor)
+    return camera.usable_evidence_count >= target
 
 
 @dataclass
