@@ -14,6 +14,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import psutil
 import pytest
 import redis
@@ -23,7 +24,7 @@ from sqlalchemy.orm import Session, sessionmaker
 from service.cli import QUEUE_NAMES
 from service.queue import QUEUES, RedisDispatcher
 from service.store import Frame
-from tests.workers.conftest import IMAGE_SIZE, simulated_camera, store_frames
+from tests.workers.conftest import IMAGE_SIZE, PEOPLE_PER_FRAME, simulated_camera, store_frames
 
 REPO = Path(__file__).resolve().parents[2]
 DEADLINE_S = 60.0
@@ -117,7 +118,8 @@ def test_serve_runs_everything_and_shuts_down_cleanly(
                 return False
 
         _wait_for(ready, "the API to be ready", serve)
-        status, _ = _http("PUT", f"{base}/v1/cameras/lobby", {"image_width_px": IMAGE_SIZE[0], "image_height_px": 1080})
+        camera_settings = {"image_width_px": IMAGE_SIZE[0], "image_height_px": IMAGE_SIZE[1], "person_height_m": 1.7}
+        status, _ = _http("PUT", f"{base}/v1/cameras/lobby", camera_settings)
         assert status == 201
         camera = simulated_camera(sessions)  # only its scene is used here
         urls = []
@@ -138,6 +140,24 @@ def test_serve_runs_everything_and_shuts_down_cleanly(
         _wait_for(answered, "every frame answered", serve)
         status, calibration = _http("GET", f"{base}/v1/cameras/lobby/calibration")
         assert status == 200 and calibration["status"] == "calibrated"
+        # The simulated camera is recovered from 50 people (surveillance preset: 1.5 px noise, 7 cm height spread).
+        scene = camera.scene
+        assert abs(calibration["fx_px"] / scene.fx - 1) < 0.05
+        normal = np.array(calibration["normal"])
+        assert np.degrees(np.arccos(np.clip(normal @ scene.normal, -1, 1))) < 2.0
+        # Every frame's distances against the truth, and its violations against the 6 ft threshold.
+        errors, agree = [], []
+        for k, url in enumerate(urls):
+            result = _http("GET", f"{base}{url}")[1]["result"]
+            truth = scene.points_bottom[k * PEOPLE_PER_FRAME : (k + 1) * PEOPLE_PER_FRAME]
+            flagged = {(v["i"], v["j"]) for v in result["violations"]}
+            for pair in result["pairs"]:
+                true_m = float(np.linalg.norm(truth[pair["i"]] - truth[pair["j"]]))
+                errors.append(abs(pair["distance_m"] / true_m - 1))
+                if abs(true_m - 1.8288) > 0.3:  # clear of the threshold: the verdict must match the truth
+                    agree.append(((pair["i"], pair["j"]) in flagged) == (true_m < 1.8288))
+        assert np.median(errors) < 0.08
+        assert np.mean(agree) > 0.95
 
         # A worker that dies is replaced.
         def workers() -> set[int]:
