@@ -17,7 +17,8 @@ class Uncertainty:
     fy_px: float
     normal_deg: float  # RMS angle between the estimated and the true normal
     rho_m: float
-    covariance: FloatArray  # over the internal camera parameters (see CameraParams)
+    # 5x5 over (fx_px, fy_px, t1_rad, t2_rad, rho_m): see uncertainty.CANONICAL_PARAMETERS.
+    covariance: FloatArray
     noise_px: float  # keypoint noise estimated from the residuals
 
 
