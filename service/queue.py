@@ -29,7 +29,7 @@ import redis
 from redis.backoff import ExponentialBackoff
 from redis.retry import Retry
 from rq import Queue
-from rq.exceptions import NoSuchJobError
+from rq.exceptions import InvalidJobOperation, NoSuchJobError
 from rq.job import Job, JobStatus
 
 from service.dispatch import DispatchUnavailableError
@@ -321,7 +321,8 @@ class RedisDispatcher:
         job_id = frame_job_id(frame_id)
         try:
             status = Job.fetch(job_id, connection=self.connection).get_status()
-        except NoSuchJobError:
+        except (NoSuchJobError, InvalidJobOperation):
+            # Gone, or finished and deleted (result_ttl=0) between the fetch and the status read: no job waits.
             status = None
         if status in _WAITING:
             return False

@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 import redis
 from rq import Queue
+from rq.exceptions import InvalidJobOperation
+from rq.job import Job, JobStatus
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -66,6 +68,34 @@ def test_frame_job_ids_are_deterministic(
     (frame_id,) = store_frames(sessions, camera, 1)
     for _ in range(3):
         dispatcher.frame_stored(camera.camera_id, frame_id)
+    assert Queue(FRAMES_QUEUE, connection=connection).get_job_ids() == [f"frame-{frame_id}"]
+
+
+def test_a_job_deleted_between_fetch_and_status_is_requeued(
+    sessions: sessionmaker[Session],
+    dispatcher: RedisDispatcher,
+    connection: redis.Redis,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A frame job that finishes (result_ttl=0 deletes it) while a starting worker re-enqueues must not crash it."""
+    camera = simulated_camera(sessions, people=20)
+    (frame_id,) = store_frames(sessions, camera, 1)
+    dispatcher.frame_stored(camera.camera_id, frame_id)
+    Queue(FRAMES_QUEUE, connection=connection).empty()
+
+    real_get_status = Job.get_status
+    raised: list[str] = []
+
+    def vanishes_once(self: Job, refresh: bool = True) -> JobStatus:
+        if not raised:  # the status read right after fetch: the job has just been deleted
+            raised.append(self.id)
+            raise InvalidJobOperation(f"Failed to retrieve status for job: {self.id}")
+        return real_get_status(self, refresh)
+
+    monkeypatch.setattr(Job, "fetch", classmethod(lambda cls, job_id, connection: cls(job_id, connection)))
+    monkeypatch.setattr(Job, "get_status", vanishes_once)
+    assert dispatcher.frames_pending([(camera.camera_id, frame_id)]) == 1
+    assert raised == [f"frame-{frame_id}"]
     assert Queue(FRAMES_QUEUE, connection=connection).get_job_ids() == [f"frame-{frame_id}"]
 
 
