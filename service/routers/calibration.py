@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, status
 from sqlalchemy.orm import Session
@@ -49,6 +49,27 @@ def _uncertainty(version: CalibrationVersion) -> CalibrationUncertainty:
     )
 
 
+def _solution_fields(version: CalibrationVersion) -> dict[str, Any]:
+    """What a solve found: shared by the history entries and the camera's current calibration."""
+    return {
+        "fx_px": version.fx_px,
+        "fy_px": version.fy_px,
+        "cx_px": version.cx_px,
+        "cy_px": version.cy_px,
+        "normal": _normal(version),
+        "rho_m": version.rho_m,
+        "uncertainty": _uncertainty(version),
+        "person_height_m": version.person_height_m,
+        "people_used": version.people_used,
+        "inliers": version.inliers,
+    }
+
+
+_SOLUTION_FIELD_NAMES = (
+    "fx_px", "fy_px", "cx_px", "cy_px", "normal", "rho_m", "uncertainty", "person_height_m", "people_used", "inliers",
+)  # fmt: skip
+
+
 def version_out(version: CalibrationVersion) -> CalibrationVersionOut:
     return CalibrationVersionOut(
         version=version.version,
@@ -56,16 +77,7 @@ def version_out(version: CalibrationVersion) -> CalibrationVersionOut:
         reason=version.reason,
         is_current=version.is_current,
         forced=version.forced,
-        fx_px=version.fx_px,
-        fy_px=version.fy_px,
-        cx_px=version.cx_px,
-        cy_px=version.cy_px,
-        normal=_normal(version),
-        rho_m=version.rho_m,
-        uncertainty=_uncertainty(version),
-        person_height_m=version.person_height_m,
-        people_used=version.people_used,
-        inliers=version.inliers,
+        **_solution_fields(version),
         evidence_count=version.evidence_count,
         duration_s=version.duration_s,
         created_at=version.created_at,
@@ -99,24 +111,12 @@ def calibration_status(session: Session, camera: Camera, settings: Settings) -> 
         "last_failure": last_failure,
     }
     if current is None:
-        empty = dict.fromkeys(
-            ("version", "fx_px", "fy_px", "cx_px", "cy_px", "normal", "rho_m", "uncertainty", "person_height_m",
-             "people_used", "inliers", "solved_evidence_count", "updated_at"),
-        )  # fmt: skip
+        empty = dict.fromkeys((*_SOLUTION_FIELD_NAMES, "version", "solved_evidence_count", "updated_at"))
         return CalibrationStatus(**fields, **empty)
     return CalibrationStatus(
         **fields,
         version=current.version,
-        fx_px=current.fx_px,
-        fy_px=current.fy_px,
-        cx_px=current.cx_px,
-        cy_px=current.cy_px,
-        normal=_normal(current),
-        rho_m=current.rho_m,
-        uncertainty=_uncertainty(current),
-        person_height_m=current.person_height_m,
-        people_used=current.people_used,
-        inliers=current.inliers,
+        **_solution_fields(current),
         solved_evidence_count=current.evidence_count,
         updated_at=current.created_at,
     )
