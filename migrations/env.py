@@ -7,11 +7,16 @@
 5. the service settings (POSEMETRY_DATABASE_URL, else the SQLite file in POSEMETRY_DATA_DIR).
 
 The engine comes from service.store.db so migrations run with the same SQLite pragmas as the service (foreign
-keys on, WAL, busy timeout). SQLite cannot ALTER most things in place, so scripts are rendered in batch mode there.
+keys on, WAL, busy timeout). SQLite cannot ALTER most things in place, so scripts are rendered in batch mode there:
+a batch rebuilds a table (create a copy, drop the original), and with foreign keys on, dropping `frames` would
+cascade-delete every observation. So on SQLite foreign keys are switched off for the migration (a pragma that
+only works outside a transaction) and the result is checked with `PRAGMA foreign_key_check` before committing.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from logging.config import fileConfig
 
 from alembic import context
@@ -55,20 +60,44 @@ def run_migrations_offline() -> None:
         context.run_migrations()
 
 
-def run_migrations_online() -> None:
-    connection = config.attributes.get(CONNECTION_ATTRIBUTE)
-    if connection is not None:
+@contextmanager
+def _sqlite_foreign_keys_off(connection: Connection) -> Iterator[None]:
+    """See the module docstring. A no-op on PostgreSQL, whose ALTER TABLE works in place."""
+    if connection.dialect.name != "sqlite":
+        yield
+        return
+    if connection.in_transaction():
+        raise RuntimeError("SQLite migrations need a connection outside a transaction (to switch foreign keys off)")
+    raw = connection.connection.driver_connection
+    raw.execute("PRAGMA foreign_keys=OFF")  # type: ignore[union-attr]
+    try:
+        yield
+    finally:
+        raw.execute("PRAGMA foreign_keys=ON")  # type: ignore[union-attr]
+
+
+def _run(connection: Connection) -> None:
+    with _sqlite_foreign_keys_off(connection):
         _configure(connection)
         with context.begin_transaction():
             context.run_migrations()
+            if connection.dialect.name == "sqlite":
+                broken = connection.exec_driver_sql("PRAGMA foreign_key_check").all()
+                if broken:
+                    raise RuntimeError(f"migration left rows that break foreign keys: {broken[:5]}")
+        if connection.in_transaction():
+            connection.commit()
+
+
+def run_migrations_online() -> None:
+    connection = config.attributes.get(CONNECTION_ATTRIBUTE)
+    if connection is not None:
+        _run(connection)
         return
     engine = make_engine(_database_url(), busy_timeout_s=get_settings().database_busy_timeout_s)
     try:
         with engine.connect() as connection:
-            _configure(connection)
-            with context.begin_transaction():
-                context.run_migrations()
-            connection.commit()
+            _run(connection)
     finally:
         engine.dispose()
 

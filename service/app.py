@@ -77,6 +77,7 @@ def create_app(
     app.state.settings = settings
     app.state.engine = engine
     app.state.session_factory = make_session_factory(engine)
+    app.state.read_session_factory = make_session_factory(engine, read_only=True)
     app.state.dispatcher = dispatcher
     install_handlers(app)
     app.add_middleware(BodyGuard, max_body_bytes=settings.max_body_bytes)

@@ -3,15 +3,16 @@
 The API and the workers only ever talk to each other through Redis, and the service never imports `workers`:
 jobs are enqueued by dotted function path, so the API process does not load the geometry to enqueue a frame.
 
-Two kinds of work, two queues:
+Two kinds of work, two queues, both deduplicated per camera by a small state machine in Redis (`CameraGate`):
+never two jobs of one kind for one camera at once and never a pile-up of queued ones; a request that arrives
+while a job runs schedules exactly one re-run, because the running job may have read the camera's state before
+the change that prompted the request.
 
-- `frames`: one job per stored frame, with a deterministic job id (`frame-<uuid>`), so enqueueing every pending
-  frame again (a worker restarting, a calibration answering frames that waited for it) never queues a frame
-  twice. Frame jobs are idempotent (a recomputed frame overwrites its result and replaces its violation events),
-  so the rare duplicate run (two enqueuers racing) costs time, not correctness.
-- `calibration`: solves, deduplicated per camera by a small state machine in Redis (see `CalibrationGate`):
-  never two solves of one camera at once and never a pile-up of queued solves; a request that arrives while a
-  solve runs schedules exactly one re-run, because the running solve may have sampled before that evidence.
+- `frames`: measure a camera's pending frames. One job answers every frame that is pending when it runs, a
+  chunk at a time, so under load frames are measured in batches (one read and one write transaction per chunk
+  instead of per frame) and an idle camera's frame is answered as soon as a worker is free. Measuring is
+  idempotent (a recomputed frame overwrites its result and replaces its violation events).
+- `calibration`: solves.
 """
 
 from __future__ import annotations
@@ -29,8 +30,6 @@ import redis
 from redis.backoff import ExponentialBackoff
 from redis.retry import Retry
 from rq import Queue
-from rq.exceptions import InvalidJobOperation, NoSuchJobError
-from rq.job import Job, JobStatus
 
 from service.dispatch import DispatchUnavailableError
 
@@ -39,16 +38,21 @@ if TYPE_CHECKING:
 
 FRAMES_QUEUE = "frames"
 CALIBRATION_QUEUE = "calibration"
-QUEUES = (CALIBRATION_QUEUE, FRAMES_QUEUE)
+# Frames first: measuring is cheap and latency-bound, solves are slow and can wait for a free moment.
+QUEUES = (FRAMES_QUEUE, CALIBRATION_QUEUE)
 
 # Jobs are named by dotted path: the service must not import the workers package (it pulls in the geometry).
-PROCESS_FRAME_JOB = "workers.jobs.process_frame"
+MEASURE_FRAMES_JOB = "workers.jobs.measure_frames"
 CALIBRATE_CAMERA_JOB = "workers.jobs.calibrate_camera"
 
-FRAME_JOB_TIMEOUT_S = 60
+# A measuring job stops taking new chunks after FRAMES_JOB_BUDGET_S (and queues its own re-run), so one busy
+# camera cannot hold a worker while other cameras wait.
+FRAMES_JOB_BUDGET_S = 5
+FRAMES_JOB_TIMEOUT_S = 120
 CALIBRATION_JOB_TIMEOUT_S = 600
-# A solve's lock outlives its job timeout, so only a worker that died mid-solve (killed, machine lost) leaves a
-# lock behind, and it expires on its own rather than blocking the camera's calibration for ever.
+# A lock outlives its job's timeout, so only a worker that died mid-job (killed, machine lost) leaves one behind,
+# and it expires on its own rather than blocking the camera for ever. Measuring jobs refresh theirs per chunk.
+FRAMES_LOCK_TTL_S = FRAMES_JOB_TIMEOUT_S + 60
 CALIBRATION_LOCK_TTL_S = CALIBRATION_JOB_TIMEOUT_S + 120
 # Successful jobs leave nothing behind (results live in SQL); failed ones stay a week for inspection.
 FAILED_JOB_TTL_S = 7 * 24 * 3600
@@ -60,8 +64,11 @@ EMBEDDED_SOCKET_FILE = "redis.sock"
 _MAX_SOCKET_PATH = 100
 
 
-_WAITING = frozenset({JobStatus.QUEUED, JobStatus.DEFERRED, JobStatus.SCHEDULED})
 _REDIS_ERRORS = (redis.ConnectionError, redis.TimeoutError)
+_JOBS = {
+    FRAMES_QUEUE: (MEASURE_FRAMES_JOB, FRAMES_JOB_TIMEOUT_S),
+    CALIBRATION_QUEUE: (CALIBRATE_CAMERA_JOB, CALIBRATION_JOB_TIMEOUT_S),
+}
 
 
 # --------------------------------------------------------------------------------------------------- connection
@@ -169,9 +176,9 @@ def _forget_pid(server: Any) -> None:
         pass
 
 
-# --------------------------------------------------------------------------------------------------- calibration gate
+# --------------------------------------------------------------------------------------------------- camera gate
 
-# The per-camera calibration state lives in one key, `lock`, whose value is `queued:<job id>` or
+# The per-camera state of one kind of job lives in one key, `lock`, whose value is `queued:<job id>` or
 # `running:<job id>`, plus two flags. Each transition is a Lua script, so it is atomic across processes.
 _REQUEST = """
 local state = redis.call('GET', KEYS[1])
@@ -208,10 +215,15 @@ end
 redis.call('DEL', KEYS[1])
 return 0
 """
+_REFRESH = """
+if redis.call('GET', KEYS[1]) ~= 'running:' .. ARGV[1] then return 0 end
+redis.call('EXPIRE', KEYS[1], ARGV[2])
+return 1
+"""
 
 
 class RequestOutcome:
-    """What a calibration request did (for logs and tests)."""
+    """What a request did (for logs and tests)."""
 
     ALREADY_QUEUED = 0
     ENQUEUED = 1
@@ -219,50 +231,55 @@ class RequestOutcome:
 
 
 @dataclass(frozen=True)
-class SolveTicket:
-    """A solve's right to run: `run` False means another solve of the camera is running (a re-run is now due)."""
+class Ticket:
+    """A job's right to run: `run` False means another job of its kind runs for the camera (a re-run is due)."""
 
     run: bool
     forced: bool
 
 
-class CalibrationGate:
-    """Per-camera deduplication of calibration solves.
+class CameraGate:
+    """Per-camera deduplication of one kind of job (`kind`: "frames" or "calibration").
 
-    States of a camera: idle (no key), queued (one job waits), running (one job solves). A request when idle
-    enqueues a job; when queued it does nothing (the waiting job will see the new evidence anyway); when running
-    it sets the re-run flag, because the running solve may have sampled before that evidence arrived. When a
-    solve finishes, a set flag turns into exactly one new queued job, however many requests set it. A forced
-    request also sets a `forced` flag that the next solve to start consumes, so forcing is never lost to dedup.
+    States of a camera: idle (no key), queued (one job waits), running (one job works). A request when idle
+    enqueues a job; when queued it does nothing (the waiting job will see the new data anyway); when running
+    it sets the re-run flag, because the running job may have read before that data arrived. When a job
+    finishes, a set flag turns into exactly one new queued job, however many requests set it. A forced
+    request also sets a `forced` flag that the next job to start consumes, so forcing is never lost to dedup.
     """
 
-    def __init__(self, connection: redis.Redis, *, lock_ttl_s: int = CALIBRATION_LOCK_TTL_S) -> None:
+    def __init__(self, connection: redis.Redis, kind: str, *, lock_ttl_s: int) -> None:
         self.connection = connection
+        self.kind = kind
         self.lock_ttl_s = lock_ttl_s
         self._request = connection.register_script(_REQUEST)
         self._start = connection.register_script(_START)
         self._finish = connection.register_script(_FINISH)
+        self._refresh = connection.register_script(_REFRESH)
 
-    @staticmethod
-    def keys(camera_id: str) -> list[str]:
-        prefix = f"posemetry:calibration:{camera_id}"
+    def keys(self, camera_id: str) -> list[str]:
+        prefix = f"posemetry:{self.kind}:{camera_id}"
         return [f"{prefix}:lock", f"{prefix}:rerun", f"{prefix}:forced"]
 
-    def request(self, camera_id: str, job_id: str, *, forced: bool) -> int:
+    def request(self, camera_id: str, job_id: str, *, forced: bool = False) -> int:
         """Register a request; returns a RequestOutcome (ENQUEUED: the caller must now enqueue `job_id`)."""
         return int(self._request(keys=self.keys(camera_id), args=[job_id, self.lock_ttl_s, "1" if forced else "0"]))
 
-    def start(self, camera_id: str, job_id: str) -> SolveTicket:
-        """Called by the job before it solves: take the camera's running slot, and learn whether it was forced."""
+    def start(self, camera_id: str, job_id: str) -> Ticket:
+        """Called by the job before it works: take the camera's running slot, and learn whether it was forced."""
         run, forced = self._start(keys=self.keys(camera_id), args=[job_id, self.lock_ttl_s])
-        return SolveTicket(run=bool(run), forced=bool(forced))
+        return Ticket(run=bool(run), forced=bool(forced))
+
+    def refresh(self, camera_id: str, job_id: str) -> bool:
+        """Called by a long job between steps: push its lock's expiry out again (False if it lost the lock)."""
+        return bool(self._refresh(keys=self.keys(camera_id), args=[job_id, self.lock_ttl_s]))
 
     def finish(self, camera_id: str, job_id: str, next_job_id: str) -> bool:
-        """Called by the job after it solved (or failed): True when a re-run is due as `next_job_id` (enqueue it)."""
+        """Called by the job when done (or failed): True when a re-run is due as `next_job_id` (enqueue it)."""
         return bool(self._finish(keys=self.keys(camera_id), args=[job_id, next_job_id, self.lock_ttl_s]))
 
     def state(self, camera_id: str) -> str:
-        """`idle`, `queued` or `running`: what the calibration status endpoint reports as `calibrating`."""
+        """`idle`, `queued` or `running`."""
         value = self.connection.get(self.keys(camera_id)[0])
         if value is None:
             return "idle"
@@ -272,18 +289,13 @@ class CalibrationGate:
 # --------------------------------------------------------------------------------------------------- dispatcher
 
 
-def frame_job_id(frame_id: uuid.UUID | str) -> str:
-    """RQ job ids allow only letters, digits, '-' and '_', which a UUID satisfies."""
-    return f"frame-{frame_id}"
-
-
-def new_calibration_job_id(camera_id: str) -> str:
-    """Unique per solve: a finished solve's job id must not collide with the re-run it schedules.
+def new_job_id(kind: str, camera_id: str) -> str:
+    """Unique per job: a finished job's id must not collide with the re-run it schedules.
 
     Camera ids may hold characters RQ refuses in job ids, so the camera appears as a short hash.
     """
     camera_hash = hashlib.blake2b(camera_id.encode(), digest_size=8).hexdigest()
-    return f"calibration-{camera_hash}-{uuid.uuid4().hex}"
+    return f"{kind}-{camera_hash}-{uuid.uuid4().hex}"
 
 
 class RedisDispatcher:
@@ -295,85 +307,67 @@ class RedisDispatcher:
 
     def __init__(self, connection: redis.Redis) -> None:
         self.connection = connection
-        self.frames = Queue(FRAMES_QUEUE, connection=connection)
-        self.calibration = Queue(CALIBRATION_QUEUE, connection=connection)
-        self.gate = CalibrationGate(connection)
+        self.queues = {
+            FRAMES_QUEUE: Queue(FRAMES_QUEUE, connection=connection),
+            CALIBRATION_QUEUE: Queue(CALIBRATION_QUEUE, connection=connection),
+        }
+        self.gates = {
+            FRAMES_QUEUE: CameraGate(connection, FRAMES_QUEUE, lock_ttl_s=FRAMES_LOCK_TTL_S),
+            CALIBRATION_QUEUE: CameraGate(connection, CALIBRATION_QUEUE, lock_ttl_s=CALIBRATION_LOCK_TTL_S),
+        }
 
     @classmethod
     def from_settings(cls, settings: Settings) -> RedisDispatcher:
         return cls(connect(redis_url(settings)))
 
     def frame_stored(self, camera_id: str, frame_id: uuid.UUID) -> None:
-        """Queue the frame's job unless one is already waiting for it."""
+        """Have the camera's pending frames measured (this one among them); deduplicated per camera."""
+        self.measure_requested([camera_id])
+
+    def measure_requested(self, camera_ids: Iterable[str]) -> int:
+        """Ask for the pending frames of each camera to be measured; returns how many jobs were queued."""
         try:
-            self._enqueue_frame(camera_id, frame_id)
+            return sum(self.request(FRAMES_QUEUE, camera_id) == RequestOutcome.ENQUEUED for camera_id in camera_ids)
         except _REDIS_ERRORS as exc:
             raise DispatchUnavailableError(f"job queue unavailable: {exc}") from exc
-
-    def frames_pending(self, frames: Iterable[tuple[str, uuid.UUID]]) -> int:
-        """Queue many (camera_id, frame_id) pairs; returns how many jobs were actually queued."""
-        try:
-            return sum(self._enqueue_frame(camera_id, frame_id) for camera_id, frame_id in frames)
-        except _REDIS_ERRORS as exc:
-            raise DispatchUnavailableError(f"job queue unavailable: {exc}") from exc
-
-    def _enqueue_frame(self, camera_id: str, frame_id: uuid.UUID) -> bool:
-        job_id = frame_job_id(frame_id)
-        try:
-            status = Job.fetch(job_id, connection=self.connection).get_status()
-        except (NoSuchJobError, InvalidJobOperation):
-            # Gone, or finished and deleted (result_ttl=0) between the fetch and the status read: no job waits.
-            status = None
-        if status in _WAITING:
-            return False
-        if status == JobStatus.STARTED:
-            # That run may have read the camera's state before the change that prompted this call (a new
-            # calibration), so it must run again; re-using its id would clobber the running job's record.
-            job_id = f"{job_id}-{uuid.uuid4().hex[:12]}"
-        self.frames.enqueue(
-            PROCESS_FRAME_JOB,
-            str(frame_id),
-            job_id=job_id,
-            description=f"frame {frame_id} of camera {camera_id}",
-            job_timeout=FRAME_JOB_TIMEOUT_S,
-            result_ttl=0,
-            failure_ttl=FAILED_JOB_TTL_S,
-        )
-        return True
 
     def calibration_requested(self, camera_id: str, forced: bool) -> None:
-        """Ask for a solve of the camera; deduplicated by CalibrationGate."""
+        """Ask for a solve of the camera; deduplicated per camera."""
         try:
-            self.request_calibration(camera_id, forced=forced)
+            self.request(CALIBRATION_QUEUE, camera_id, forced=forced)
         except _REDIS_ERRORS as exc:
             raise DispatchUnavailableError(f"job queue unavailable: {exc}") from exc
 
-    def request_calibration(self, camera_id: str, *, forced: bool = False) -> int:
-        """calibration_requested, returning the RequestOutcome (tests and logs want to know)."""
-        job_id = new_calibration_job_id(camera_id)
-        outcome = self.gate.request(camera_id, job_id, forced=forced)
+    def request(self, kind: str, camera_id: str, *, forced: bool = False) -> int:
+        """A gated request for a job of `kind` (a queue name) on the camera; returns the RequestOutcome."""
+        job_id = new_job_id(kind, camera_id)
+        outcome = self.gates[kind].request(camera_id, job_id, forced=forced)
         if outcome == RequestOutcome.ENQUEUED:
-            self.enqueue_calibration(camera_id, job_id)
+            self.enqueue(kind, camera_id, job_id)
         return outcome
 
-    def enqueue_calibration(self, camera_id: str, job_id: str) -> None:
-        """Queue a solve whose slot the gate already granted (a new request, or a re-run a finished solve owes)."""
-        self.calibration.enqueue(
-            CALIBRATE_CAMERA_JOB,
+    def enqueue(self, kind: str, camera_id: str, job_id: str) -> None:
+        """Queue a job whose slot the gate already granted (a new request, or a re-run a finished job owes)."""
+        function, timeout_s = _JOBS[kind]
+        self.queues[kind].enqueue(
+            function,
             camera_id,
             job_id=job_id,
-            description=f"calibrate camera {camera_id}",
-            job_timeout=CALIBRATION_JOB_TIMEOUT_S,
+            description=f"{kind} of camera {camera_id}",
+            job_timeout=timeout_s,
             result_ttl=0,
             failure_ttl=FAILED_JOB_TTL_S,
         )
 
-    def calibration_state(self, camera_id: str) -> str:
-        """`idle`, `queued` or `running`."""
+    def state(self, kind: str, camera_id: str) -> str:
+        """`idle`, `queued` or `running` (the calibration status endpoint reports the latter two as calibrating)."""
         try:
-            return self.gate.state(camera_id)
+            return self.gates[kind].state(camera_id)
         except _REDIS_ERRORS as exc:
             raise DispatchUnavailableError(f"job queue unavailable: {exc}") from exc
+
+    def calibration_state(self, camera_id: str) -> str:
+        return self.state(CALIBRATION_QUEUE, camera_id)
 
     def ready(self) -> bool:
         """Whether Redis answers (for /readyz)."""

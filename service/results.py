@@ -2,8 +2,8 @@
 
 Shared by the synchronous `POST .../distances` endpoint and the frame-processing worker, so that a frame's
 stored result and an on-demand measurement of the same people are computed by the same code. No I/O: the
-caller reads the calibration and the people from the store and writes the result back (`process_frame` does
-exactly that for the worker, in the caller's transaction).
+caller reads the calibration and the people from the store and writes the outcome back (the worker does that a
+batch of frames at a time; `process_frame` does it for one frame in the caller's transaction).
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ from sqlalchemy.orm import Session
 from service.geometry import Calibration, Uncertainty, measure
 from service.schemas import FrameResult, PairDistance, PersonPosition, finite_or_none
 from service.store import repository
-from service.store.models import CalibrationVersion, Camera, Frame, Observation
-from service.store.repository import PersonIn, ViolationIn
+from service.store.models import CalibrationVersion, Camera, Frame, Observation, clip_reason
+from service.store.repository import FrameOutcome, PersonIn, ViolationIn
 
 Point = tuple[float, float]
 _NAN_POINT = (math.nan, math.nan)
@@ -152,20 +152,37 @@ def compute_frame_result(
     return FrameComputation(result=result, violations=violations)
 
 
-def process_frame(session: Session, frame: Frame, camera: Camera, calibration: CalibrationVersion) -> Frame:
-    """Measure a stored frame with `calibration` and store its result and violation events (no commit).
+def frame_outcome(
+    frame: Frame, people: Sequence[Observation], camera: Camera, calibration: CalibrationVersion
+) -> FrameOutcome:
+    """A stored frame measured with `calibration`: done with its result, or failed with the reason (no I/O).
 
-    The worker's whole job for one frame once it has loaded these rows; recomputing a frame after a newer
-    calibration replaces its result and its violation events rather than adding to them.
+    Bad stored data for one frame (a person the geometry refuses) fails that frame, not the worker's batch.
     """
-    computation = compute_frame_result(
-        repository.frame_observations(session, frame.id),
-        calibration,
-        image_size_px=(camera.image_width_px, camera.image_height_px),
-        distance_threshold_m=camera.distance_threshold_m,
+    try:
+        computation = compute_frame_result(
+            people,
+            calibration,
+            image_size_px=(camera.image_width_px, camera.image_height_px),
+            distance_threshold_m=camera.distance_threshold_m,
+        )
+    except (ValueError, ArithmeticError) as exc:
+        return FrameOutcome(
+            frame.id, frame.camera_id, frame.timestamp, "failed", calibration.version, error=clip_reason(str(exc))
+        )
+    return FrameOutcome(
+        frame.id,
+        frame.camera_id,
+        frame.timestamp,
+        "done",
+        calibration.version,
+        result=computation.result_json(),
+        violations=computation.violations,
     )
-    frame = repository.set_frame_result(
-        session, frame.id, status="done", result=computation.result_json(), calibration_version=calibration.version
-    )
-    repository.record_violations(session, frame, computation.violations)
-    return frame
+
+
+def process_frame(session: Session, frame: Frame, camera: Camera, calibration: CalibrationVersion) -> FrameOutcome:
+    """Measure one stored frame and store its result and violation events in the caller's transaction."""
+    outcome = frame_outcome(frame, repository.frame_observations(session, frame.id), camera, calibration)
+    repository.record_frame_outcomes(session, [outcome])
+    return outcome

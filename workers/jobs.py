@@ -1,9 +1,10 @@
-"""The RQ jobs: answer a frame (`process_frame`) and solve a camera (`calibrate_camera`).
+"""The RQ jobs: measure a camera's pending frames (`measure_frames`) and solve a camera (`calibrate_camera`).
 
-Both are safe to run more than once: a frame's result is overwritten and its violation events replaced, and a
-solve appends a version whose promotion to current follows a rule (`at_least_as_supported`), not arrival order.
-Database transactions are kept short and never span a solve: on SQLite every transaction holds the one write
-lock, and the API must keep storing frames while a camera is being solved.
+Both are gated per camera (service.queue.CameraGate) and safe to run more than once: a frame's result is
+overwritten and its violation events replaced, and a solve appends a version whose promotion to current follows
+a rule (`at_least_as_supported`), not arrival order. Database transactions are kept short and never span a solve
+or a batch's arithmetic: reads use deferred transactions, and on SQLite every writing transaction holds the one
+write lock, which the API needs to keep storing frames.
 """
 
 from __future__ import annotations
@@ -12,27 +13,27 @@ import logging
 import math
 import os
 import time
-import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 from rq import get_current_job
 from sqlalchemy import Engine
 from sqlalchemy.orm import Session, sessionmaker
 
-from service.queue import RedisDispatcher, new_calibration_job_id
+from service.queue import CALIBRATION_QUEUE, FRAMES_JOB_BUDGET_S, FRAMES_QUEUE, RedisDispatcher, new_job_id
 from service.settings import Settings, get_settings
-from service.store import CalibrationVersion, Camera, Frame, make_engine, make_session_factory
-from service.store.models import REASON_MAX_LENGTH
+from service.store import CalibrationVersion, Camera, make_engine, make_session_factory
+from service.store.models import clip_reason
 from service.store.repository import (
     CalibrationValues,
     CameraNotFoundError,
     add_calibration,
     calibration_due,
     current_calibration,
+    frames_observations,
     pending_frames,
+    record_frame_outcomes,
     sample_evidence,
-    set_frame_result,
 )
 
 log = logging.getLogger(__name__)
@@ -44,26 +45,39 @@ FAILED = "failed"
 GONE = "gone"
 SKIPPED = "skipped"
 
-_engines: dict[tuple[int, str], tuple[Engine, sessionmaker[Session]]] = {}
+# Frames measured per read/compute/write round: large enough to amortise the transactions, small enough that
+# the write lock is held for milliseconds.
+FRAMES_CHUNK = 200
+
+_engines: dict[tuple[int, str], tuple[Engine, sessionmaker[Session], sessionmaker[Session]]] = {}
 
 
-def session_factory(settings: Settings | None = None) -> sessionmaker[Session]:
-    """Sessions on the configured database, one engine per process and URL.
+def _factories(settings: Settings) -> tuple[sessionmaker[Session], sessionmaker[Session]]:
+    """(writing, read-only) session factories on the configured database, one engine per process and URL.
 
     Keyed by pid: a forking worker's child must not reuse connections opened by its parent (SQLite and
     PostgreSQL connections are not fork-safe), so each process builds its own engine on first use.
     """
-    settings = settings or get_settings()
     key = (os.getpid(), settings.database_url)
     if key not in _engines:
         engine = make_engine(settings.database_url, busy_timeout_s=settings.database_busy_timeout_s)
-        _engines[key] = (engine, make_session_factory(engine))
-    return _engines[key][1]
+        _engines[key] = (engine, make_session_factory(engine), make_session_factory(engine, read_only=True))
+    return _engines[key][1], _engines[key][2]
+
+
+def session_factory(settings: Settings | None = None) -> sessionmaker[Session]:
+    """Writing sessions on the configured database (see `_factories`)."""
+    return _factories(settings or get_settings())[0]
+
+
+def read_session_factory(settings: Settings | None = None) -> sessionmaker[Session]:
+    """Read-only sessions: on SQLite they neither wait for nor hold the write lock."""
+    return _factories(settings or get_settings())[1]
 
 
 def dispose_engines() -> None:
     """Close this process's connections (before forking, and in tests that swap databases)."""
-    for (pid, _url), (engine, _factory) in list(_engines.items()):
+    for (pid, _url), (engine, _factory, _read) in list(_engines.items()):
         if pid == os.getpid():
             engine.dispose()
     _engines.clear()
@@ -89,56 +103,75 @@ def _dispatcher(settings: Settings) -> RedisDispatcher:
     return RedisDispatcher.from_settings(settings)
 
 
+def _gated(kind: str, camera_id: str, work: Callable[[RedisDispatcher, str, bool], str]) -> str:
+    """Run `work(dispatcher, job_id, forced)` in the camera's slot for `kind`, then queue the re-run it owes.
+
+    The gate guarantees one job of a kind per camera at a time; requests that arrived while this one ran become
+    exactly one re-run, queued when this one finishes (whatever the outcome, hence `finally`).
+    """
+    dispatcher = _dispatcher(get_settings())
+    job = get_current_job()
+    job_id = job.id if job is not None else new_job_id(kind, camera_id)
+    gate = dispatcher.gates[kind]
+    ticket = gate.start(camera_id, job_id)
+    if not ticket.run:
+        return SKIPPED  # another job of this kind runs for the camera; the gate has scheduled a re-run after it
+    try:
+        return work(dispatcher, job_id, ticket.forced)
+    finally:
+        next_job_id = new_job_id(kind, camera_id)
+        if gate.finish(camera_id, job_id, next_job_id):
+            dispatcher.enqueue(kind, camera_id, next_job_id)
+
+
 # --------------------------------------------------------------------------------------------------- frames
 
 
-def process_frame(frame_id: str) -> str:
-    """Answer one stored frame with the camera's current calibration, then nudge calibration if it is due.
+def measure_frames(camera_id: str) -> str:
+    """Answer the camera's pending frames with its current calibration, a chunk at a time; then nudge a solve.
 
-    An uncalibrated camera leaves the frame pending: the first calibration re-enqueues every pending frame of
-    its camera, so the frame is answered then (recomputed, not dropped). A frame already answered with the
-    current version is left alone, which makes duplicate deliveries cheap.
+    An uncalibrated camera leaves its frames pending: the first calibration asks for them to be measured, so they
+    are answered then (recomputed, not dropped). After FRAMES_JOB_BUDGET_S the job stops and queues its own re-run,
+    so a camera with a backlog shares the workers with the others.
     """
     settings = get_settings()
-    frame_uuid = uuid.UUID(frame_id)
-    with _transaction(settings) as session:
-        frame = session.get(Frame, frame_uuid)
-        if frame is None:
-            return GONE  # its camera was deleted after the frame was queued
-        camera = session.get(Camera, frame.camera_id)
-        if camera is None:
-            return GONE
-        camera_id = camera.id
-        due = calibration_due(
-            camera, min_people=settings.calibration_min_people, growth_factor=settings.calibration_growth_factor
-        )
-        calibration = current_calibration(session, camera_id)
-        if calibration is None:
-            outcome = PENDING
-        elif frame.status == "done" and frame.calibration_version == calibration.version:
-            outcome = DONE
-        else:
-            outcome = _answer(session, frame, camera, calibration)
-    if due:
-        _dispatcher(settings).calibration_requested(camera_id, False)
+    return _gated(FRAMES_QUEUE, camera_id, lambda d, job_id, _forced: _measure_pending(settings, d, camera_id, job_id))
+
+
+def _measure_pending(settings: Settings, dispatcher: RedisDispatcher, camera_id: str, job_id: str) -> str:
+    from service.results import frame_outcome
+
+    deadline = time.monotonic() + FRAMES_JOB_BUDGET_S
+    outcome = DONE
+    while True:
+        with read_session_factory(settings)() as session:
+            camera = session.get(Camera, camera_id)
+            if camera is None:
+                return GONE
+            calibration = current_calibration(session, camera_id)
+            if calibration is None:
+                outcome = PENDING
+                break
+            frames = pending_frames(session, camera_id, limit=FRAMES_CHUNK)
+            people = frames_observations(session, [frame.id for frame in frames])
+        outcomes = [frame_outcome(frame, people.get(frame.id, []), camera, calibration) for frame in frames]
+        if outcomes:
+            with _transaction(settings) as session:
+                record_frame_outcomes(session, outcomes)
+        failed = [o for o in outcomes if o.status == "failed"]
+        for o in failed:
+            log.warning("frame %s of camera %s failed: %s", o.frame_id, camera_id, o.error)
+        if len(frames) < FRAMES_CHUNK:
+            break
+        if time.monotonic() > deadline:
+            dispatcher.request(FRAMES_QUEUE, camera_id)  # we are running: this schedules our re-run
+            break
+        dispatcher.gates[FRAMES_QUEUE].refresh(camera_id, job_id)
+    if calibration_due(
+        camera, min_people=settings.calibration_min_people, growth_factor=settings.calibration_growth_factor
+    ):
+        dispatcher.calibration_requested(camera_id, False)
     return outcome
-
-
-def _answer(session: Session, frame: Frame, camera: Camera, calibration: CalibrationVersion) -> str:
-    """Store the frame's result and its violation events in the caller's transaction (atomically)."""
-    from service.results import process_frame as measure_frame
-
-    try:
-        with session.begin_nested():
-            measure_frame(session, frame, camera, calibration)
-    except (ValueError, ArithmeticError) as exc:
-        # Bad stored data for this one frame must not fail the queue: the frame records why it has no answer.
-        log.warning("frame %s of camera %s failed: %s", frame.id, camera.id, exc)
-        set_frame_result(
-            session, frame.id, status="failed", calibration_version=calibration.version, error=_reason(str(exc))
-        )
-        return FAILED
-    return DONE
 
 
 # --------------------------------------------------------------------------------------------------- calibration
@@ -174,31 +207,21 @@ def at_least_as_supported(new: CalibrationValues, current: CalibrationVersion) -
 
 
 def calibrate_camera(camera_id: str, forced: bool = False) -> str:
-    """Solve a camera on a capped, spatially balanced sample of its evidence; deduplicated per camera.
-
-    The CalibrationGate in Redis guarantees one solve per camera at a time; requests that arrived while this one
-    ran become exactly one re-run, queued when this one finishes (whatever the outcome, hence `finally`).
-    """
+    """Solve a camera on a capped, spatially balanced sample of its evidence; deduplicated per camera."""
     settings = get_settings()
-    dispatcher = _dispatcher(settings)
-    job = get_current_job()
-    job_id = job.id if job is not None else new_calibration_job_id(camera_id)
-    ticket = dispatcher.gate.start(camera_id, job_id)
-    if not ticket.run:
-        return SKIPPED  # another solve of this camera is running; the gate has scheduled a re-run after it
-    try:
-        outcome = _solve(settings, dispatcher, camera_id, forced=forced or ticket.forced)
-    finally:
-        next_job_id = new_calibration_job_id(camera_id)
-        if dispatcher.gate.finish(camera_id, job_id, next_job_id):
-            dispatcher.enqueue_calibration(camera_id, next_job_id)
-    return outcome
+    return _gated(
+        CALIBRATION_QUEUE,
+        camera_id,
+        lambda dispatcher, _job_id, ticket_forced: _solve(
+            settings, dispatcher, camera_id, forced=forced or ticket_forced
+        ),
+    )
 
 
 def _solve(settings: Settings, dispatcher: RedisDispatcher, camera_id: str, *, forced: bool) -> str:
     from service.geometry import CalibrationError, calibrate
 
-    with _transaction(settings) as session:
+    with read_session_factory(settings)() as session:
         camera = session.get(Camera, camera_id)
         if camera is None:
             return GONE
@@ -228,7 +251,7 @@ def _solve(settings: Settings, dispatcher: RedisDispatcher, camera_id: str, *, f
         )
     except CalibrationError as exc:
         values = CalibrationValues.failure(
-            _reason(str(exc)),
+            clip_reason(str(exc)),
             person_height_m=height_m,
             people_used=len(sample),
             evidence_count=evidence_count,
@@ -243,9 +266,7 @@ def _solve(settings: Settings, dispatcher: RedisDispatcher, camera_id: str, *, f
             )
             record = add_calibration(session, camera_id, values, make_current=make_current, forced=forced)
             version = record.version
-            waiting = []
-            if make_current:
-                waiting = [(frame.camera_id, frame.id) for frame in pending_frames(session, camera_id)]
+            waiting = make_current and bool(pending_frames(session, camera_id, limit=1))
     except CameraNotFoundError:
         return GONE
     log.info(
@@ -258,12 +279,7 @@ def _solve(settings: Settings, dispatcher: RedisDispatcher, camera_id: str, *, f
         evidence_count,
     )
     if waiting:
-        dispatcher.frames_pending(waiting)
+        dispatcher.measure_requested([camera_id])
     if values.status != "ok":
         return FAILED
     return DONE if make_current else SKIPPED
-
-
-def _reason(message: str) -> str:
-    """Stored reasons are capped by the schema; keep the start, which says what went wrong."""
-    return message if len(message) <= REASON_MAX_LENGTH else message[: REASON_MAX_LENGTH - 3] + "..."

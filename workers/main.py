@@ -1,10 +1,10 @@
 """The worker process: `posemetry worker --queue frames --queue calibration` (or `python -m workers.main`).
 
-On start, before taking any job, a worker re-enqueues every pending frame and requests a solve for every camera
-whose evidence calls for one. The API stores first and enqueues second, so anything accepted while Redis was
-down (or lost with a Redis that was wiped) is still in SQL; this start-up pass hands it to the queues again.
-Enqueueing is idempotent (deterministic frame job ids, per-camera calibration dedup), so every worker may do it
-and several workers starting together do not multiply work.
+On start, before taking any job, a worker asks for every camera with pending frames to be measured and for a
+solve of every camera whose evidence calls for one. The API stores first and enqueues second, so anything
+accepted while Redis was down (or lost with a Redis that was wiped) is still in SQL; this start-up pass hands it
+to the queues again. Requests are deduplicated per camera, so every worker may do it and several workers starting
+together do not multiply work.
 """
 
 from __future__ import annotations
@@ -18,12 +18,12 @@ from rq import Queue, SimpleWorker, Worker
 
 from service.queue import QUEUES, RedisDispatcher, connect, redis_url, wait_for_redis
 from service.settings import Settings, get_settings
-from service.store.repository import calibration_due, list_cameras, pending_frames
+from service.store.repository import calibration_due, cameras_with_pending_frames, list_cameras
 from workers import jobs
 
 log = logging.getLogger(__name__)
 
-# Cameras are read a page at a time; pending frames are read as one list of ids and enqueued in batches.
+# Cameras are read a page at a time.
 _PAGE = 1000
 REDIS_START_TIMEOUT_S = 30.0
 
@@ -33,17 +33,15 @@ class Requeued:
     """What the start-up pass handed to the queues."""
 
     frames: int
+    """Cameras whose pending frames were queued for measuring."""
     calibrations: int
 
 
 def requeue_pending(settings: Settings, dispatcher: RedisDispatcher) -> Requeued:
-    """Enqueue every pending frame and every camera's due calibration (idempotent: see the module docstring)."""
-    factory = jobs.session_factory(settings)
-    frames = 0
+    """Request measuring for cameras with pending frames, and due calibrations (see the module docstring)."""
+    factory = jobs.read_session_factory(settings)
     with factory() as session:
-        pending = [(frame.camera_id, frame.id) for frame in pending_frames(session)]
-    for start in range(0, len(pending), _PAGE):
-        frames += dispatcher.frames_pending(pending[start : start + _PAGE])
+        frames = dispatcher.measure_requested(cameras_with_pending_frames(session))
     calibrations = 0
     after: str | None = None
     while True:
@@ -86,7 +84,7 @@ def run_worker(
     connection = connect(redis_url(settings))
     wait_for_redis(connection, timeout_s=REDIS_START_TIMEOUT_S)
     requeued = requeue_pending(settings, RedisDispatcher(connection))
-    log.info("re-enqueued %d pending frames and %d due calibrations", requeued.frames, requeued.calibrations)
+    log.info("requested measuring for %d cameras and %d due calibrations", requeued.frames, requeued.calibrations)
     # Forked children must open their own database connections, never inherit the parent's.
     jobs.dispose_engines()
     worker_class = Worker if fork else SimpleWorker

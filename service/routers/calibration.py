@@ -22,6 +22,7 @@ from service.store.models import CalibrationVersion, Camera
 from .common import (
     CameraIdPath,
     DispatcherDep,
+    ReadSessionDep,
     SessionDep,
     SettingsDep,
     camera_url,
@@ -123,7 +124,7 @@ def calibration_status(session: Session, camera: Camera, settings: Settings) -> 
 
 
 @router.get("/{camera_id}/calibration", response_model=CalibrationStatus)
-def get_calibration(camera_id: CameraIdPath, session: SessionDep, settings: SettingsDep) -> CalibrationStatus:
+def get_calibration(camera_id: CameraIdPath, session: ReadSessionDep, settings: SettingsDep) -> CalibrationStatus:
     """The current calibration, or how much more evidence the camera needs."""
     return calibration_status(session, require_camera(session, camera_id), settings)
 
@@ -131,7 +132,7 @@ def get_calibration(camera_id: CameraIdPath, session: SessionDep, settings: Sett
 @router.get("/{camera_id}/calibration/history", response_model=CalibrationHistory)
 def get_calibration_history(
     camera_id: CameraIdPath,
-    session: SessionDep,
+    session: ReadSessionDep,
     limit: Annotated[int, Query(ge=1, le=1000, description="Versions per page.")] = 100,
     before: Annotated[int | None, Query(ge=1, description="Last version of the previous page.")] = None,
 ) -> CalibrationHistory:
@@ -144,11 +145,10 @@ def get_calibration_history(
 
 @router.post("/{camera_id}/calibration", status_code=status.HTTP_202_ACCEPTED, response_model=CalibrationRequested)
 def request_calibration(
-    camera_id: CameraIdPath, session: SessionDep, dispatcher: DispatcherDep
+    camera_id: CameraIdPath, session: ReadSessionDep, dispatcher: DispatcherDep
 ) -> CalibrationRequested:
     """Force a re-solve now: its result becomes current even if less well supported than the current one."""
     require_camera(session, camera_id)
-    session.rollback()  # release the read transaction before talking to the queue
     try:
         dispatcher.calibration_requested(camera_id, forced=True)
     except UNAVAILABLE_ERRORS as exc:

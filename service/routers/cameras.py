@@ -10,7 +10,15 @@ from service.schemas import METRES_PER_FOOT, CameraList, CameraOut, CameraSettin
 from service.store import repository
 from service.store.models import Camera
 
-from .common import CameraIdPath, DispatcherDep, SessionDep, camera_url, nudge_best_effort, require_camera
+from .common import (
+    CameraIdPath,
+    DispatcherDep,
+    ReadSessionDep,
+    SessionDep,
+    camera_url,
+    nudge_best_effort,
+    require_camera,
+)
 
 router = APIRouter(prefix="/v1/cameras", tags=["cameras"])
 
@@ -83,7 +91,7 @@ def put_camera(
 
 @router.get("", response_model=CameraList)
 def list_cameras(
-    session: SessionDep,
+    session: ReadSessionDep,
     limit: Annotated[int, Query(ge=1, le=1000, description="Cameras per page.")] = 100,
     after: Annotated[str | None, Query(max_length=128, description="Last id of the previous page.")] = None,
 ) -> CameraList:
@@ -94,7 +102,7 @@ def list_cameras(
 
 
 @router.get("/{camera_id}", response_model=CameraOut)
-def get_camera(camera_id: CameraIdPath, session: SessionDep) -> CameraOut:
+def get_camera(camera_id: CameraIdPath, session: ReadSessionDep) -> CameraOut:
     return camera_out(require_camera(session, camera_id))
 
 

@@ -40,6 +40,12 @@ def get_session(request: Request) -> Iterator[Session]:
         yield session
 
 
+def get_read_session(request: Request) -> Iterator[Session]:
+    """A session for routes that only read: on SQLite it never waits for (or holds) the write lock."""
+    with request.app.state.read_session_factory() as session:
+        yield session
+
+
 def get_settings(request: Request) -> Settings:
     return request.app.state.settings  # type: ignore[no-any-return]
 
@@ -49,6 +55,7 @@ def get_dispatcher(request: Request) -> Dispatcher:
 
 
 SessionDep = Annotated[Session, Depends(get_session)]
+ReadSessionDep = Annotated[Session, Depends(get_read_session)]
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 DispatcherDep = Annotated[Dispatcher, Depends(get_dispatcher)]
 
@@ -57,12 +64,16 @@ def camera_url(camera_id: str) -> str:
     return f"/v1/cameras/{camera_id}"
 
 
+def camera_not_found(camera_id: str) -> ProblemError:
+    return ProblemError(
+        404, "camera-not-found", f"No camera {camera_id!r}: create it with PUT {camera_url(camera_id)}."
+    )
+
+
 def require_camera(session: Session, camera_id: str) -> Camera:
     camera = repository.get_camera(session, camera_id)
     if camera is None:
-        raise ProblemError(
-            404, "camera-not-found", f"No camera {camera_id!r}: create it with PUT {camera_url(camera_id)}."
-        )
+        raise camera_not_found(camera_id)
     return camera
 
 

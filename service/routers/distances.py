@@ -9,14 +9,14 @@ from service.results import compute_frame_result
 from service.schemas import DistanceRequest, FrameResult
 from service.store import repository
 
-from .common import CameraIdPath, SessionDep, SettingsDep, camera_url, people_for_camera, require_camera
+from .common import CameraIdPath, ReadSessionDep, SettingsDep, camera_url, people_for_camera, require_camera
 
 router = APIRouter(prefix="/v1/cameras", tags=["distances"])
 
 
 @router.post("/{camera_id}/distances", response_model=FrameResult)
 def post_distances(
-    camera_id: CameraIdPath, body: DistanceRequest, session: SessionDep, settings: SettingsDep
+    camera_id: CameraIdPath, body: DistanceRequest, session: ReadSessionDep, settings: SettingsDep
 ) -> FrameResult:
     """Positions, every pair's distance with its 1-sigma, and violations; 409 while the camera is uncalibrated."""
     camera = require_camera(session, camera_id)
@@ -26,7 +26,7 @@ def post_distances(
     threshold_m = camera.distance_threshold_m
     if calibration is not None:
         session.expunge(calibration)  # keep its loaded values readable after the rollback below
-    session.rollback()  # measuring needs no transaction; do not hold SQLite's write lock while computing
+    session.rollback()  # measuring needs no transaction; end the read snapshot before computing
     if calibration is None:
         raise ProblemError(
             409,

@@ -16,8 +16,10 @@ from service.store.models import Frame
 from .common import (
     CameraIdPath,
     DispatcherDep,
+    ReadSessionDep,
     SessionDep,
     SettingsDep,
+    camera_not_found,
     camera_url,
     people_for_camera,
     queue_unavailable,
@@ -41,31 +43,41 @@ def post_keypoints(
     camera_id: CameraIdPath,
     body: KeypointFrame,
     response: Response,
+    read_session: ReadSessionDep,
     session: SessionDep,
     settings: SettingsDep,
     dispatcher: DispatcherDep,
 ) -> FrameAccepted:
     """Store one frame's people, then nudge the workers: 202 with the frame's URL (200 for a retry).
 
+    The measuring worker that picks the frame up also requests a calibration when the camera's evidence calls
+    for one, so this hot path makes one call to the queue.
+
     Posting the same client `frame_id` again returns the stored frame and stores nothing; if that frame is
     still pending it is dispatched again, which is how a client recovers from an earlier 503. When the queue
     is unreachable the answer is 503, but the frame is already committed and workers pick it up on start.
     """
-    camera = require_camera(session, camera_id)
+    # Checks and conversion happen before the writing transaction, which on SQLite holds the one write lock.
+    camera = require_camera(read_session, camera_id)
     people = people_for_camera(body.people, camera, settings)
-    frame, created = repository.add_keypoint_frame(
-        session, camera_id, timestamp=body.timestamp, people=people, client_frame_id=body.frame_id
-    )
-    due = repository.calibration_due(
-        camera, min_people=settings.calibration_min_people, growth_factor=settings.calibration_growth_factor
-    )
+    read_session.rollback()
+    try:
+        frame, created = repository.add_keypoint_frame(
+            session,
+            camera_id,
+            timestamp=body.timestamp,
+            people=people,
+            client_frame_id=body.frame_id,
+            camera=camera,
+        )
+    except repository.CameraNotFoundError:
+        raise camera_not_found(camera_id) from None  # deleted since it was read
     session.commit()
+    session.close()  # give the connection back before talking to the queue
     url = frame_url(camera_id, frame.id)
     if created or frame.status == "pending":
         try:
             dispatcher.frame_stored(camera_id, frame.id)
-            if due:
-                dispatcher.calibration_requested(camera_id, forced=False)
         except UNAVAILABLE_ERRORS as exc:
             raise queue_unavailable(
                 "the frame is stored and will be processed when the queue is back.",
@@ -105,7 +117,7 @@ def frame_out(frame: Frame) -> FrameOut:
 def get_frame(
     camera_id: CameraIdPath,
     frame_id: Annotated[uuid.UUID, Path(description="The frame id returned by the keypoints POST.")],
-    session: SessionDep,
+    session: ReadSessionDep,
 ) -> FrameOut:
     """A frame's status and, once measured, its people's positions, pair distances and violations."""
     require_camera(session, camera_id)

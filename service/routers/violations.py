@@ -13,7 +13,7 @@ from service.schemas import ViolationBucketOut, ViolationCounts
 from service.store import repository
 from service.store.repository import HOUR_S, MINUTE_S
 
-from .common import CameraIdPath, SessionDep, require_camera
+from .common import CameraIdPath, ReadSessionDep, require_camera
 
 router = APIRouter(prefix="/v1/cameras", tags=["violations"])
 
@@ -26,7 +26,7 @@ MAX_BUCKETS = 10_000
 @router.get("/{camera_id}/violations", response_model=ViolationCounts)
 def get_violations(
     camera_id: CameraIdPath,
-    session: SessionDep,
+    session: ReadSessionDep,
     since: Annotated[
         AwareDatetime | None, Query(description="Window start (RFC 3339 with zone). Default: 1 h (minute) / 1 day.")
     ] = None,

@@ -5,13 +5,14 @@ callers need to open a database.
 """
 
 from .db import make_engine, make_session_factory, normalise_url
-from .models import Base, CalibrationVersion, Camera, Frame, Observation, ViolationEvent
+from .models import Base, CalibrationVersion, Camera, Frame, FrameImage, Observation, ViolationEvent
 
 __all__ = [
     "Base",
     "CalibrationVersion",
     "Camera",
     "Frame",
+    "FrameImage",
     "Observation",
     "ViolationEvent",
     "make_engine",

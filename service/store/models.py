@@ -11,6 +11,11 @@ Design choices that the rest of the service relies on:
 - Observations carry a coarse grid `cell` of the ankle position and a pseudo-random `sample_key`; the index
   (camera_id, usable, cell, sample_key) lets a calibration read a capped, spatially balanced sample with a few
   index range scans instead of reading every stored person (see repository.sample_evidence).
+- Raw keypoints are stored as packed little-endian float32 (x, y, score) x 17, not JSON: encoding JSON floats
+  was a quarter of the cost of storing a frame, and the points are only ever read back whole (`Observation.keypoints`
+  unpacks them).
+- An image frame's bytes live in `frame_images` only until its pose job has read them, unless the camera opted in
+  to keeping images (`cameras.keep_images`); the people found are observations like any posted keypoints.
 - Violation events carry `epoch_s`, whole seconds since the Unix epoch, so per-minute and per-hour counts are
   integer arithmetic that SQLite and PostgreSQL evaluate identically.
 """
@@ -21,6 +26,7 @@ import uuid
 from datetime import UTC, datetime
 from typing import Any
 
+import numpy as np
 from sqlalchemy import (
     JSON,
     BigInteger,
@@ -32,6 +38,7 @@ from sqlalchemy import (
     ForeignKey,
     Index,
     Integer,
+    LargeBinary,
     MetaData,
     String,
     Text,
@@ -50,6 +57,12 @@ CAMERA_ID_MAX_LENGTH = 128
 CLIENT_FRAME_ID_MAX_LENGTH = 128
 REASON_MAX_LENGTH = 200
 
+
+def clip_reason(message: str) -> str:
+    """A reason cut to fit its column, keeping the start, which says what went wrong."""
+    return message if len(message) <= REASON_MAX_LENGTH else message[: REASON_MAX_LENGTH - 3] + "..."
+
+
 # The sampling grid over the image: cell = row * GRID_COLS + col of the ankle centre. Part of the stored data's
 # meaning (observations keep their cell), so changing it needs a migration that recomputes `cell`.
 GRID_COLS = 8
@@ -59,7 +72,13 @@ GRID_CELLS = GRID_COLS * GRID_ROWS
 SAMPLE_KEY_SPACE = 2**31
 
 FRAME_SOURCES = ("keypoints", "image")
-FRAME_STATUSES = ("pending", "done", "failed")
+# detecting: an image frame waiting for its pose job; pending: people stored, waiting to be measured.
+FRAME_STATUSES = ("detecting", "pending", "done", "failed")
+IMAGE_CONTENT_TYPES = ("image/jpeg", "image/png")
+POSE_MODEL_MAX_LENGTH = 64
+# COCO-17 keypoints as stored: (x px, y px, score) float32, little-endian, one row per keypoint.
+KEYPOINTS_DTYPE = np.dtype("<f4")
+KEYPOINT_COUNT = 17
 CALIBRATION_STATUSES = ("ok", "failed")
 
 NAMING_CONVENTION = {
@@ -133,6 +152,8 @@ class Camera(Base):
     equal_focal: Mapped[bool] = mapped_column(Boolean, default=True)
     distance_threshold_m: Mapped[float] = mapped_column(default=DEFAULT_DISTANCE_THRESHOLD_M)
     known_focal_px: Mapped[float | None]
+    # Privacy by default: an image frame's picture is dropped once its people are found, unless this is set.
+    keep_images: Mapped[bool] = mapped_column(Boolean, default=False, server_default=text("false"))
     # Maintained on insert, so "is a solve due?" never has to count millions of rows.
     usable_evidence_count: Mapped[int] = mapped_column(BigInteger, default=0, server_default=text("0"))
     evidence_at_last_solve: Mapped[int] = mapped_column(BigInteger, default=0, server_default=text("0"))
@@ -163,6 +184,8 @@ class Frame(Base):
     people: Mapped[int] = mapped_column(Integer, default=0)
     result: Mapped[dict[str, Any] | None] = mapped_column(JSON)
     calibration_version: Mapped[int | None] = mapped_column(Integer)
+    # Which pose model found the people of an image frame (None for posted keypoints).
+    pose_model: Mapped[str | None] = mapped_column(String(POSE_MODEL_MAX_LENGTH))
     error: Mapped[str | None]
     processed_at: Mapped[datetime | None]
 
@@ -189,7 +212,13 @@ class Observation(Base):
     shoulder_y_px: Mapped[float | None]
     ankle_x_px: Mapped[float | None]
     ankle_y_px: Mapped[float | None]
-    keypoints: Mapped[list[list[float]] | None] = mapped_column(JSON)
+    keypoints_f32: Mapped[bytes | None] = mapped_column(LargeBinary)
+    # Detector output for people found in images (None for posted keypoints).
+    box_left_px: Mapped[float | None]
+    box_top_px: Mapped[float | None]
+    box_right_px: Mapped[float | None]
+    box_bottom_px: Mapped[float | None]
+    detection_score: Mapped[float | None]
     usable: Mapped[bool] = mapped_column(Boolean)
     unusable_reason: Mapped[str | None] = mapped_column(String(REASON_MAX_LENGTH))
     cell: Mapped[int | None] = mapped_column(Integer)
@@ -209,6 +238,48 @@ class Observation(Base):
         CheckConstraint(f"cell IS NULL OR (cell >= 0 AND cell < {GRID_CELLS})", name="cell_on_grid"),
         CheckConstraint(f"sample_key >= 0 AND sample_key < {SAMPLE_KEY_SPACE}", name="sample_key_range"),
     )
+
+    @property
+    def keypoints(self) -> list[list[float]] | None:
+        """The COCO-17 keypoints as `[[x, y, score] x 17]`, or None when the person was posted as centres."""
+        return unpack_keypoints(self.keypoints_f32)
+
+    @property
+    def box_px(self) -> tuple[float, float, float, float] | None:
+        """Detector box (left, top, right, bottom), or None for people that were not detected in an image."""
+        box = (self.box_left_px, self.box_top_px, self.box_right_px, self.box_bottom_px)
+        return None if any(v is None for v in box) else box  # type: ignore[return-value]
+
+
+def pack_keypoints(keypoints: Any) -> bytes:
+    """(17, 3) keypoints as the stored bytes; raises ValueError for any other shape."""
+    array = np.asarray(keypoints, dtype=KEYPOINTS_DTYPE)
+    if array.shape != (KEYPOINT_COUNT, 3):
+        raise ValueError(f"keypoints must be {KEYPOINT_COUNT} rows of (x, y, score), got shape {array.shape}")
+    return array.tobytes()
+
+
+def unpack_keypoints(data: bytes | None) -> list[list[float]] | None:
+    if data is None:
+        return None
+    # Through float32's shortest decimal form, so a posted 0.9 reads back as 0.9, not 0.8999999761581421.
+    values = [float(str(value)) for value in np.frombuffer(data, dtype=KEYPOINTS_DTYPE)]
+    return [values[k : k + 3] for k in range(0, 3 * KEYPOINT_COUNT, 3)]
+
+
+class FrameImage(Base):
+    """The posted picture of an image frame: the pose job's input, kept afterwards only if the camera opts in."""
+
+    __tablename__ = "frame_images"
+
+    frame_id: Mapped[uuid.UUID] = mapped_column(ForeignKey("frames.id", ondelete="CASCADE"), primary_key=True)
+    content_type: Mapped[str] = mapped_column(String(32))
+    width_px: Mapped[int] = mapped_column(Integer)
+    height_px: Mapped[int] = mapped_column(Integer)
+    data: Mapped[bytes] = mapped_column(LargeBinary)
+    created_at: Mapped[datetime] = mapped_column(default=utc_now)
+
+    __table_args__ = (CheckConstraint(f"content_type IN {_in(IMAGE_CONTENT_TYPES)}", name="content_type"),)
 
 
 class CalibrationVersion(Base):

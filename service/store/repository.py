@@ -13,14 +13,15 @@ import math
 import random
 import uuid
 from collections.abc import Sequence
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
-from sqlalchemy import Select, Table, delete, func, insert, select, true, union_all, update
+from sqlalchemy import Select, Table, bindparam, delete, func, insert, select, true, union_all, update
 from sqlalchemy.exc import IntegrityError
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, make_transient_to_detached
 
 from .models import (
     CALIBRATION_STATUSES,
@@ -35,6 +36,7 @@ from .models import (
     Frame,
     Observation,
     ViolationEvent,
+    pack_keypoints,
     utc_now,
 )
 
@@ -43,6 +45,18 @@ if TYPE_CHECKING:
 
 # Bulk inserts go through the Core tables: ~15% less overhead per frame than ORM bulk inserts.
 _OBSERVATIONS = cast(Table, Observation.__table__)
+_FRAMES = cast(Table, Frame.__table__)
+_FRAME_COLUMNS = (
+    "id",
+    "camera_id",
+    "client_frame_id",
+    "timestamp",
+    "received_at",
+    "source",
+    "status",
+    "people",
+    "pose_model",
+)
 _VIOLATION_EVENTS = cast(Table, ViolationEvent.__table__)
 
 MINUTE_S = 60
@@ -74,6 +88,9 @@ class PersonIn:
     ankle_px: Point | None
     keypoints: Sequence[Sequence[float]] | None = None
     unusable_reason: str | None = None
+    box_px: tuple[float, float, float, float] | None = None
+    """Detector box (left, top, right, bottom) of a person found in an image."""
+    detection_score: float | None = None
 
 
 @dataclass(frozen=True)
@@ -163,6 +180,20 @@ class ViolationIn:
 
 
 # --------------------------------------------------------------------------------------------------- outputs
+
+
+@dataclass(frozen=True)
+class FrameOutcome:
+    """A measured frame as the worker stores it: `done` with a result and violations, or `failed` with a reason."""
+
+    frame_id: uuid.UUID
+    camera_id: str
+    timestamp: datetime
+    status: str
+    calibration_version: int | None
+    result: dict[str, Any] | None = None
+    violations: Sequence[ViolationIn] = ()
+    error: str | None = None
 
 
 @dataclass(frozen=True)
@@ -317,6 +348,7 @@ def _observation_rows(camera: Camera, frame_id: uuid.UUID, people: Sequence[Pers
             reason = "ankle centre not visible"
         shoulder = person.shoulder_px or (None, None)
         ankle = person.ankle_px or (None, None)
+        box = person.box_px or (None, None, None, None)
         cell = None
         if person.ankle_px is not None:
             cell = grid_cell(person.ankle_px[0], person.ankle_px[1], camera.image_width_px, camera.image_height_px)
@@ -329,7 +361,12 @@ def _observation_rows(camera: Camera, frame_id: uuid.UUID, people: Sequence[Pers
                 "shoulder_y_px": shoulder[1],
                 "ankle_x_px": ankle[0],
                 "ankle_y_px": ankle[1],
-                "keypoints": None if person.keypoints is None else [list(map(float, k)) for k in person.keypoints],
+                "keypoints_f32": None if person.keypoints is None else pack_keypoints(person.keypoints),
+                "box_left_px": box[0],
+                "box_top_px": box[1],
+                "box_right_px": box[2],
+                "box_bottom_px": box[3],
+                "detection_score": person.detection_score,
                 "usable": reason is None,
                 "unusable_reason": reason,
                 "cell": cell,
@@ -337,6 +374,25 @@ def _observation_rows(camera: Camera, frame_id: uuid.UUID, people: Sequence[Pers
             }
         )
     return rows
+
+
+def _frame_row(frame: Frame) -> dict[str, Any]:
+    return {column: getattr(frame, column) for column in _FRAME_COLUMNS}
+
+
+def _insert_observations(session: Session, camera_id: str, rows: Sequence[dict[str, Any]]) -> None:
+    """Insert a frame's people and count its usable ones on the camera (the counter that drives re-solves)."""
+    if not rows:
+        return
+    session.execute(insert(_OBSERVATIONS), rows)
+    usable = sum(1 for row in rows if row["usable"])
+    if usable:
+        session.execute(
+            update(Camera)
+            .where(Camera.id == camera_id)
+            .values(usable_evidence_count=Camera.usable_evidence_count + usable)
+            .execution_options(synchronize_session=False)
+        )
 
 
 def _frame_by_client_id(session: Session, camera_id: str, client_frame_id: str) -> Frame | None:
@@ -352,19 +408,24 @@ def add_keypoint_frame(
     people: Sequence[PersonIn],
     client_frame_id: str | None = None,
     received_at: datetime | None = None,
+    camera: Camera | None = None,
 ) -> tuple[Frame, bool]:
     """Store a frame and its people atomically; returns (frame, created).
 
     A frame posted again with the same client frame id (a client retry, possibly racing the original) returns
-    the stored frame with created=False and stores nothing, so evidence is never counted twice.
+    the stored frame with created=False and stores nothing, so evidence is never counted twice. `camera`, when
+    the caller has already read it (the API, in a read-only session), saves reading it again inside the write
+    transaction; only its image size is used, and a camera deleted meanwhile is still refused (foreign key).
     """
     if timestamp.tzinfo is None or timestamp.utcoffset() is None:
         raise ValueError(f"timestamp {timestamp!r} has no timezone: the store keeps UTC instants")
-    camera = _require_camera(session, camera_id)
+    if camera is None:
+        camera = _require_camera(session, camera_id)
     if client_frame_id is not None:
         existing = _frame_by_client_id(session, camera_id, client_frame_id)
         if existing is not None:
             return existing, False
+    # The rows go in as Core inserts, which cost a fraction of an ORM flush.
     frame = Frame(
         id=uuid.uuid4(),
         camera_id=camera_id,
@@ -376,28 +437,25 @@ def add_keypoint_frame(
         people=len(people),
     )
     rows = _observation_rows(camera, frame.id, people)
-    usable = sum(1 for row in rows if row["usable"])
     try:
-        with session.begin_nested():
-            session.add(frame)
-            session.flush()
-            if rows:
-                session.execute(insert(_OBSERVATIONS), rows)
-            if usable:
-                session.execute(
-                    update(Camera)
-                    .where(Camera.id == camera_id)
-                    .values(usable_evidence_count=Camera.usable_evidence_count + usable)
-                    .execution_options(synchronize_session=False)
-                )
+        # A savepoint only where a unique-id race is possible: it costs two statements on the hot path.
+        with session.begin_nested() if client_frame_id is not None else nullcontext():
+            session.execute(insert(_FRAMES), [_frame_row(frame)])
+            _insert_observations(session, camera_id, rows)
     except IntegrityError:
-        if client_frame_id is None:
-            raise
-        existing = _frame_by_client_id(session, camera_id, client_frame_id)
-        if existing is None:
-            raise
-        return existing, False
-    session.expire(camera, ["usable_evidence_count"])
+        existing = None
+        if client_frame_id is not None:
+            existing = _frame_by_client_id(session, camera_id, client_frame_id)
+        if existing is not None:
+            return existing, False
+        if session.get(Camera, camera_id) is None:
+            raise CameraNotFoundError(camera_id) from None
+        raise
+    if camera in session:
+        session.expire(camera, ["usable_evidence_count"])
+    # Attach the inserted row's object to the session as if it had been loaded, without a SELECT or an INSERT.
+    make_transient_to_detached(frame)
+    session.add(frame)
     return frame, True
 
 
@@ -409,8 +467,22 @@ def get_frame(session: Session, camera_id: str, frame_id: uuid.UUID) -> Frame | 
 
 def frame_observations(session: Session, frame_id: uuid.UUID) -> list[Observation]:
     """A frame's people in posted order: what a distance computation measures."""
-    stmt = select(Observation).where(Observation.frame_id == frame_id).order_by(Observation.person_index)
-    return list(session.scalars(stmt))
+    return frames_observations(session, [frame_id]).get(frame_id, [])
+
+
+def frames_observations(session: Session, frame_ids: Sequence[uuid.UUID]) -> dict[uuid.UUID, list[Observation]]:
+    """Several frames' people in one query (a worker measuring a batch), each frame's in posted order."""
+    people: dict[uuid.UUID, list[Observation]] = {}
+    if not frame_ids:
+        return people
+    stmt = (
+        select(Observation)
+        .where(Observation.frame_id.in_(frame_ids))
+        .order_by(Observation.frame_id, Observation.person_index)
+    )
+    for observation in session.scalars(stmt):
+        people.setdefault(observation.frame_id, []).append(observation)
+    return people
 
 
 def pending_frames(session: Session, camera_id: str | None = None, *, limit: int | None = None) -> list[Frame]:
@@ -421,6 +493,12 @@ def pending_frames(session: Session, camera_id: str | None = None, *, limit: int
     stmt = stmt.order_by(Frame.received_at, Frame.id)
     if limit is not None:
         stmt = stmt.limit(limit)
+    return list(session.scalars(stmt))
+
+
+def cameras_with_pending_frames(session: Session) -> list[str]:
+    """Cameras that have frames waiting to be measured (a starting worker's re-enqueue pass)."""
+    stmt = select(Frame.camera_id).where(Frame.status == "pending").distinct().order_by(Frame.camera_id)
     return list(session.scalars(stmt))
 
 
@@ -694,10 +772,10 @@ def reset_calibration(session: Session, camera_id: str, *, drop_evidence: bool =
 # --------------------------------------------------------------------------------------------------- violations
 
 
-def record_violations(session: Session, frame: Frame, violations: Sequence[ViolationIn]) -> int:
-    """Replace the frame's violation events with these (a recomputed frame must not count twice)."""
-    session.execute(delete(ViolationEvent).where(ViolationEvent.frame_id == frame.id))
-    epoch_s = math.floor(frame.timestamp.timestamp())
+def _violation_rows(
+    camera_id: str, frame_id: uuid.UUID, timestamp: datetime, violations: Sequence[ViolationIn]
+) -> list[dict[str, Any]]:
+    epoch_s = math.floor(timestamp.timestamp())
     rows = []
     for v in violations:
         i, j = sorted((int(v.person_i), int(v.person_j)))
@@ -705,9 +783,9 @@ def record_violations(session: Session, frame: Frame, violations: Sequence[Viola
             raise ValueError(f"a violation needs two different people, got ({v.person_i}, {v.person_j})")
         rows.append(
             {
-                "camera_id": frame.camera_id,
-                "frame_id": frame.id,
-                "timestamp": frame.timestamp,
+                "camera_id": camera_id,
+                "frame_id": frame_id,
+                "timestamp": timestamp,
                 "epoch_s": epoch_s,
                 "person_i": i,
                 "person_j": j,
@@ -715,9 +793,54 @@ def record_violations(session: Session, frame: Frame, violations: Sequence[Viola
                 "distance_std_m": _finite_or_none(v.distance_std_m),
             }
         )
+    return rows
+
+
+def record_violations(session: Session, frame: Frame, violations: Sequence[ViolationIn]) -> int:
+    """Replace the frame's violation events with these (a recomputed frame must not count twice)."""
+    rows = _violation_rows(frame.camera_id, frame.id, frame.timestamp, violations)
+    session.execute(delete(ViolationEvent).where(ViolationEvent.frame_id == frame.id))
     if rows:
         session.execute(insert(_VIOLATION_EVENTS), rows)
     return len(rows)
+
+
+def record_frame_outcomes(session: Session, outcomes: Sequence[FrameOutcome], *, now: datetime | None = None) -> int:
+    """Store many frames' results and replace their violation events, in a few statements (a worker's batch).
+
+    Returns how many frames were updated; a frame deleted meanwhile (its camera was) is simply not among them.
+    """
+    if not outcomes:
+        return 0
+    now = now or utc_now()
+    violation_rows = []
+    for outcome in outcomes:
+        if outcome.status not in ("done", "failed"):
+            raise ValueError(f"an outcome is done or failed, got {outcome.status!r}")
+        violation_rows += _violation_rows(outcome.camera_id, outcome.frame_id, outcome.timestamp, outcome.violations)
+    updated = session.execute(
+        update(_FRAMES).where(_FRAMES.c.id == bindparam("frame_id")),
+        [
+            {
+                "frame_id": o.frame_id,
+                "status": o.status,
+                "result": o.result,
+                "calibration_version": o.calibration_version,
+                "error": o.error,
+                "processed_at": now,
+            }
+            for o in outcomes
+        ],
+    )
+    frame_ids = [o.frame_id for o in outcomes]
+    session.execute(delete(ViolationEvent).where(ViolationEvent.frame_id.in_(frame_ids)))
+    if violation_rows:
+        live = set(session.scalars(select(Frame.id).where(Frame.id.in_(frame_ids))))
+        violation_rows = [row for row in violation_rows if row["frame_id"] in live]
+    if violation_rows:
+        session.execute(insert(_VIOLATION_EVENTS), violation_rows)
+    session.expire_all()
+    return int(updated.rowcount)  # type: ignore[attr-defined]
 
 
 def violation_counts(

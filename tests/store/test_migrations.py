@@ -14,7 +14,7 @@ from service.store import make_engine
 from service.store.migrate import current_revision, head_revision, schema_differences, upgrade
 from service.store.models import Base
 
-TABLES = {"cameras", "frames", "observations", "calibrations", "violation_events"}
+TABLES = {"cameras", "frames", "frame_images", "observations", "calibrations", "violation_events"}
 
 
 def test_upgrade_builds_the_models_schema(database_url: str) -> None:
@@ -71,3 +71,65 @@ def test_cli_db_upgrade_reports_an_unreachable_database(tmp_path: Path) -> None:
     result = CliRunner().invoke(app, ["db", "upgrade", "--url", "postgresql://user:secret@127.0.0.1:9/none"])
     assert result.exit_code == 1
     assert "secret" not in result.output
+
+
+def test_0002_packs_stored_keypoints_and_unpacks_them_on_downgrade(database_url: str) -> None:
+    """Keypoints stored as JSON before revision 0002 survive the move to packed float32, and the way back."""
+    import json
+
+    from alembic import command
+    from sqlalchemy import text
+    from sqlalchemy.orm import Session
+
+    from service.store import Observation
+    from service.store.migrate import alembic_config
+
+    keypoints = [[100.25 + k, 200.5 - k, k / 17] for k in range(17)]
+    upgrade(database_url, "0001")
+    engine = make_engine(database_url)
+    try:
+        with engine.begin() as connection:
+            connection.execute(
+                text(
+                    "INSERT INTO cameras (id, image_width_px, image_height_px, person_height_m, equal_focal, "
+                    "distance_threshold_m, created_at, updated_at) VALUES ('c', 640, 480, 1.3, true, 1.8, "
+                    "'2026-01-01 00:00:00', '2026-01-01 00:00:00')"
+                )
+            )
+            connection.execute(
+                text(
+                    "INSERT INTO frames (id, camera_id, timestamp, received_at, source, status, people) VALUES "
+                    "('00000000000000000000000000000001', 'c', '2026-01-01 00:00:00', '2026-01-01 00:00:00', "
+                    "'keypoints', 'pending', 2)"
+                    if engine.dialect.name == "sqlite"
+                    else "INSERT INTO frames (id, camera_id, timestamp, received_at, source, status, people) VALUES "
+                    "('00000000-0000-0000-0000-000000000001', 'c', '2026-01-01 00:00:00+00', "
+                    "'2026-01-01 00:00:00+00', 'keypoints', 'pending', 2)"
+                )
+            )
+            frame_id = connection.execute(text("SELECT id FROM frames")).scalar_one()
+            for index, value in enumerate((json.dumps(keypoints), None)):
+                connection.execute(
+                    text(
+                        "INSERT INTO observations (camera_id, frame_id, person_index, keypoints, usable, "
+                        "unusable_reason, sample_key) VALUES ('c', :frame, :index, :kp, false, 'test', 1)"
+                    ),
+                    {"frame": frame_id, "index": index, "kp": value},
+                )
+        upgrade(database_url)
+        with Session(engine) as session:
+            stored = session.query(Observation).order_by(Observation.person_index).all()
+            assert stored[1].keypoints is None
+            assert stored[0].keypoints is not None
+            for got, want in zip(stored[0].keypoints, keypoints, strict=True):
+                assert got == pytest.approx(want, abs=1e-4)
+        command.downgrade(alembic_config(database_url), "0001")
+        with engine.connect() as connection:
+            rows = connection.execute(text("SELECT keypoints FROM observations ORDER BY person_index")).all()
+        restored = rows[0][0] if isinstance(rows[0][0], list) else json.loads(rows[0][0])
+        assert rows[1][0] is None
+        for got, want in zip(restored, keypoints, strict=True):
+            assert got == pytest.approx(want, abs=1e-4)
+    finally:
+        engine.dispose()
+    upgrade(database_url)

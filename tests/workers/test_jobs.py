@@ -9,8 +9,6 @@ import numpy as np
 import pytest
 import redis
 from rq import Queue
-from rq.exceptions import InvalidJobOperation
-from rq.job import Job, JobStatus
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -19,10 +17,10 @@ from service.dispatch import Dispatcher, DispatchUnavailableError
 from service.queue import (
     CALIBRATION_QUEUE,
     FRAMES_QUEUE,
-    CalibrationGate,
+    CameraGate,
     RedisDispatcher,
     RequestOutcome,
-    SolveTicket,
+    Ticket,
     connect,
 )
 from service.settings import get_settings
@@ -61,49 +59,60 @@ def test_redis_down_raises_dispatch_unavailable(tmp_path: Path) -> None:
         down.calibration_requested("cam", False)
 
 
-def test_frame_job_ids_are_deterministic(
+def test_frames_of_a_camera_make_one_measuring_job(
     sessions: sessionmaker[Session], dispatcher: RedisDispatcher, connection: redis.Redis
 ) -> None:
-    camera = simulated_camera(sessions, people=20)
-    (frame_id,) = store_frames(sessions, camera, 1)
-    for _ in range(3):
-        dispatcher.frame_stored(camera.camera_id, frame_id)
-    assert Queue(FRAMES_QUEUE, connection=connection).get_job_ids() == [f"frame-{frame_id}"]
+    camera = simulated_camera(sessions, people=40)
+    other = simulated_camera(sessions, "cam-2", people=40)
+    store_frames(sessions, camera, 3, dispatcher=dispatcher)
+    store_frames(sessions, other, 1, dispatcher=dispatcher)
+    jobs_queued = Queue(FRAMES_QUEUE, connection=connection).get_jobs()
+    assert sorted(job.args[0] for job in jobs_queued) == ["cam-1", "cam-2"]
+    assert dispatcher.state(FRAMES_QUEUE, "cam-1") == "queued"
 
 
-def test_a_job_deleted_between_fetch_and_status_is_requeued(
+def test_a_measuring_job_answers_every_pending_frame_in_chunks(
     sessions: sessionmaker[Session],
     dispatcher: RedisDispatcher,
     connection: redis.Redis,
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    """A frame job that finishes (result_ttl=0 deletes it) while a starting worker re-enqueues must not crash it."""
-    camera = simulated_camera(sessions, people=20)
-    (frame_id,) = store_frames(sessions, camera, 1)
-    dispatcher.frame_stored(camera.camera_id, frame_id)
-    Queue(FRAMES_QUEUE, connection=connection).empty()
+    camera = simulated_camera(sessions, people=400)
+    store_frames(sessions, camera, 8)
+    dispatcher.request(CALIBRATION_QUEUE, camera.camera_id)
+    run_jobs(connection)
+    assert _frame_statuses(sessions) == {"done": 8}  # the first calibration asks for waiting frames
+    store_frames(sessions, camera, 9)  # stored while Redis was "down": nobody asked for measuring
+    monkeypatch.setattr(jobs, "FRAMES_CHUNK", 4)
+    assert jobs.measure_frames(camera.camera_id) == jobs.DONE
+    assert _frame_statuses(sessions) == {"done": 17}  # three chunks: 4 + 4 + 1
 
-    real_get_status = Job.get_status
-    raised: list[str] = []
 
-    def vanishes_once(self: Job, refresh: bool = True) -> JobStatus:
-        if not raised:  # the status read right after fetch: the job has just been deleted
-            raised.append(self.id)
-            raise InvalidJobOperation(f"Failed to retrieve status for job: {self.id}")
-        return real_get_status(self, refresh)
-
-    monkeypatch.setattr(Job, "fetch", classmethod(lambda cls, job_id, connection: cls(job_id, connection)))
-    monkeypatch.setattr(Job, "get_status", vanishes_once)
-    assert dispatcher.frames_pending([(camera.camera_id, frame_id)]) == 1
-    assert raised == [f"frame-{frame_id}"]
-    assert Queue(FRAMES_QUEUE, connection=connection).get_job_ids() == [f"frame-{frame_id}"]
+def test_a_measuring_job_over_its_budget_queues_its_own_rerun(
+    sessions: sessionmaker[Session],
+    dispatcher: RedisDispatcher,
+    connection: redis.Redis,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    camera = simulated_camera(sessions, people=400)
+    store_frames(sessions, camera, 8)
+    dispatcher.request(CALIBRATION_QUEUE, camera.camera_id)
+    run_jobs(connection)
+    store_frames(sessions, camera, 8)
+    monkeypatch.setattr(jobs, "FRAMES_CHUNK", 3)
+    monkeypatch.setattr(jobs, "FRAMES_JOB_BUDGET_S", -1.0)  # out of budget after the first chunk
+    assert jobs.measure_frames(camera.camera_id) == jobs.DONE
+    assert _frame_statuses(sessions) == {"done": 11, "pending": 5}
+    assert [job.args[0] for job in Queue(FRAMES_QUEUE, connection=connection).get_jobs()] == [camera.camera_id]
+    run_jobs(connection)
+    assert _frame_statuses(sessions) == {"done": 16}
 
 
 # --------------------------------------------------------------------------------------------------- calibration gate
 
 
 def test_gate_states_and_forced_flag(connection: redis.Redis) -> None:
-    gate = CalibrationGate(connection)
+    gate = CameraGate(connection, CALIBRATION_QUEUE, lock_ttl_s=60)
     assert gate.request("c", "j1", forced=False) == RequestOutcome.ENQUEUED
     assert gate.request("c", "j2", forced=True) == RequestOutcome.ALREADY_QUEUED
     assert gate.state("c") == "queued"
@@ -115,7 +124,8 @@ def test_gate_states_and_forced_flag(connection: redis.Redis) -> None:
     assert gate.request("c", "j4", forced=False) == RequestOutcome.RERUN_SCHEDULED
     assert gate.finish("c", "j1", "j5") is True  # one re-run, however many requests came in
     assert gate.state("c") == "queued"
-    assert gate.start("c", "j5") == SolveTicket(run=True, forced=False)
+    assert gate.start("c", "j5") == Ticket(run=True, forced=False)
+    assert gate.refresh("c", "j5") and not gate.refresh("c", "j-other")
     assert gate.finish("c", "j5", "j6") is False
     assert gate.state("c") == "idle"
 
@@ -125,8 +135,8 @@ def test_two_requests_make_one_solve(
 ) -> None:
     camera = simulated_camera(sessions)
     store_frames(sessions, camera, 8)
-    assert dispatcher.request_calibration(camera.camera_id) == RequestOutcome.ENQUEUED
-    assert dispatcher.request_calibration(camera.camera_id) == RequestOutcome.ALREADY_QUEUED
+    assert dispatcher.request(CALIBRATION_QUEUE, camera.camera_id) == RequestOutcome.ENQUEUED
+    assert dispatcher.request(CALIBRATION_QUEUE, camera.camera_id) == RequestOutcome.ALREADY_QUEUED
     dispatcher.calibration_requested(camera.camera_id, False)
     assert Queue(CALIBRATION_QUEUE, connection=connection).count == 1
     run_jobs(connection)
@@ -148,12 +158,12 @@ def test_requests_during_a_solve_make_exactly_one_rerun(
     def solve_while_requests_arrive(*args, **kwargs):  # type: ignore[no-untyped-def]
         if not outcomes:  # the first solve, after it sampled: more evidence arrives, each frame nudging calibration
             store_frames(sessions, camera, 5)
-            outcomes.extend(dispatcher.request_calibration(camera.camera_id) for _ in range(3))
+            outcomes.extend(dispatcher.request(CALIBRATION_QUEUE, camera.camera_id) for _ in range(3))
             assert dispatcher.calibration_state(camera.camera_id) == "running"
         return solve(*args, **kwargs)
 
     monkeypatch.setattr(geometry, "calibrate", solve_while_requests_arrive)
-    dispatcher.request_calibration(camera.camera_id)
+    dispatcher.request(CALIBRATION_QUEUE, camera.camera_id)
     run_jobs(connection)
     assert outcomes == [RequestOutcome.RERUN_SCHEDULED] * 3
     first, rerun = _versions(sessions, camera.camera_id)
@@ -167,12 +177,12 @@ def test_unforced_requests_without_new_evidence_do_not_solve(
 ) -> None:
     camera = simulated_camera(sessions)
     store_frames(sessions, camera, 8)
-    dispatcher.request_calibration(camera.camera_id)
+    dispatcher.request(CALIBRATION_QUEUE, camera.camera_id)
     run_jobs(connection)
-    dispatcher.request_calibration(camera.camera_id)  # e.g. frames that saw "due" while the first solve ran
+    dispatcher.request(CALIBRATION_QUEUE, camera.camera_id)  # e.g. frames that saw "due" while the first solve ran
     run_jobs(connection)
     assert [v.version for v in _versions(sessions, camera.camera_id)] == [1]
-    dispatcher.request_calibration(camera.camera_id, forced=True)
+    dispatcher.request(CALIBRATION_QUEUE, camera.camera_id, forced=True)
     run_jobs(connection)
     assert [(v.version, v.forced) for v in _versions(sessions, camera.camera_id)] == [(1, False), (2, True)]
 
@@ -224,17 +234,17 @@ def test_version_becomes_current_only_when_as_well_supported_unless_forced(
 ) -> None:
     camera = simulated_camera(sessions)
     store_frames(sessions, camera, 20)
-    dispatcher.request_calibration(camera.camera_id)
+    dispatcher.request(CALIBRATION_QUEUE, camera.camera_id)
     run_jobs(connection)
     # Evidence doubles, but the solve runs on a tiny sample: fewer inliers and less precise, so it must not
     # replace version 1...
     store_frames(sessions, camera, 20)
     monkeypatch.setenv("POSEMETRY_CALIBRATION_SAMPLE_CAP", "12")
     get_settings.cache_clear()
-    dispatcher.request_calibration(camera.camera_id)
+    dispatcher.request(CALIBRATION_QUEUE, camera.camera_id)
     run_jobs(connection)
     # ...unless forced.
-    dispatcher.request_calibration(camera.camera_id, forced=True)
+    dispatcher.request(CALIBRATION_QUEUE, camera.camera_id, forced=True)
     run_jobs(connection)
     first, weak, forced = _versions(sessions, camera.camera_id)
     assert (first.status, weak.status, forced.status) == ("ok", "ok", "ok")
@@ -273,7 +283,7 @@ def test_calibration_error_is_recorded_and_the_worker_carries_on(
 ) -> None:
     camera = simulated_camera(sessions, people=60)
     store_frames(sessions, camera, 1, people=1, dispatcher=dispatcher)
-    dispatcher.request_calibration(camera.camera_id, forced=True)
+    dispatcher.request(CALIBRATION_QUEUE, camera.camera_id, forced=True)
     run_jobs(connection)
     (version,) = _versions(sessions, camera.camera_id)
     assert version.status == "failed" and version.reason and not version.is_current
@@ -299,9 +309,9 @@ def test_requeue_on_start_is_idempotent(
     settings = get_settings()
     first = requeue_pending(settings, dispatcher)
     second = requeue_pending(settings, dispatcher)
-    assert (first.frames, first.calibrations) == (5, 1)
+    assert (first.frames, first.calibrations) == (1, 1)
     assert second.frames == 0
-    assert Queue(FRAMES_QUEUE, connection=connection).count == 5
+    assert Queue(FRAMES_QUEUE, connection=connection).count == 1
     assert Queue(CALIBRATION_QUEUE, connection=connection).count == 1
     # A worker start (burst: drain and exit) re-enqueues nothing twice and answers everything.
     requeued = run_worker(burst=True)
