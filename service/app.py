@@ -16,7 +16,7 @@ from sqlalchemy import Engine
 from service import __version__
 from service.dispatch import Dispatcher, NullDispatcher
 from service.problems import PROBLEM_MEDIA_TYPE, BodyGuard, install_handlers
-from service.routers import calibration, cameras, distances, frames, health, violations
+from service.routers import calibration, cameras, distances, frames, health, pictures, violations
 from service.settings import Settings, get_settings
 from service.store import make_engine, make_session_factory
 
@@ -80,7 +80,7 @@ def create_app(
     app.state.read_session_factory = make_session_factory(engine, read_only=True)
     app.state.dispatcher = dispatcher
     install_handlers(app)
-    app.add_middleware(BodyGuard, max_body_bytes=settings.max_body_bytes)
-    for module in (cameras, frames, calibration, distances, violations, health):
+    app.add_middleware(BodyGuard, max_body_bytes=settings.max_body_bytes, uploads=(frames.upload_route(settings),))
+    for module in (cameras, frames, pictures, calibration, distances, violations, health):
         app.include_router(module.router)
     return app

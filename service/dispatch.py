@@ -27,6 +27,9 @@ class Dispatcher(Protocol):
     def frame_stored(self, camera_id: str, frame_id: uuid.UUID) -> None:
         """A frame and its people are committed; measure it (now, or once the camera is calibrated)."""
 
+    def image_stored(self, camera_id: str, frame_id: uuid.UUID) -> None:
+        """An image frame is committed; find its people (pose), then measure it."""
+
     def calibration_requested(self, camera_id: str, forced: bool) -> None:
         """Solve the camera's calibration: because evidence grew (forced=False) or on demand (forced=True,
         the new version becomes current even if less well supported)."""
@@ -44,6 +47,9 @@ class NullDispatcher:
     def frame_stored(self, camera_id: str, frame_id: uuid.UUID) -> None:
         return None
 
+    def image_stored(self, camera_id: str, frame_id: uuid.UUID) -> None:
+        return None
+
     def calibration_requested(self, camera_id: str, forced: bool) -> None:
         return None
 
@@ -57,6 +63,7 @@ class RecordingDispatcher:
 
     fail: bool = False
     frames: list[tuple[str, uuid.UUID]] = field(default_factory=list)
+    images: list[tuple[str, uuid.UUID]] = field(default_factory=list)
     calibrations: list[tuple[str, bool]] = field(default_factory=list)
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
@@ -68,6 +75,11 @@ class RecordingDispatcher:
         self._check()
         with self._lock:
             self.frames.append((camera_id, frame_id))
+
+    def image_stored(self, camera_id: str, frame_id: uuid.UUID) -> None:
+        self._check()
+        with self._lock:
+            self.images.append((camera_id, frame_id))
 
     def calibration_requested(self, camera_id: str, forced: bool) -> None:
         self._check()

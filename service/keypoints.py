@@ -25,8 +25,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import replace
+from typing import TYPE_CHECKING
 
 from service.store.repository import PersonIn
+
+if TYPE_CHECKING:
+    from service.pose.types import DetectedPerson
 
 # COCO-17 order: nose, eyes (1, 2), ears (3, 4), shoulders (5, 6), elbows, wrists, hips (11, 12), knees, ankles.
 LEFT_SHOULDER, RIGHT_SHOULDER = 5, 6
@@ -86,6 +91,12 @@ def person_from_keypoints(
         keypoints=[[float(v) for v in k] for k in keypoints],
         unusable_reason=evidence_problem(shoulder, ankle, image_size_px),
     )
+
+
+def person_from_detection(person: DetectedPerson, image_size_px: tuple[int, int]) -> PersonIn:
+    """A person the pose model found, as the store's row: its keypoints' verdict plus the detector's box and score."""
+    row = person_from_keypoints(person.coco_keypoints(), image_size_px)
+    return replace(row, box_px=tuple(float(v) for v in person.box_xyxy_px), detection_score=person.detection_score)
 
 
 def person_from_centres(shoulder: Point | None, ankle: Point | None, image_size_px: tuple[int, int]) -> PersonIn:

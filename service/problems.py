@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 from collections.abc import Sequence
+from dataclasses import dataclass
 from http import HTTPStatus
 from typing import Any
 
@@ -137,17 +139,34 @@ def _is_json(content_type: str) -> bool:
     return media == "application/json" or (media.startswith("application/") and media.endswith("+json"))
 
 
+@dataclass(frozen=True)
+class UploadRoute:
+    """POST paths that take something other than JSON (image uploads), with their own size limit."""
+
+    path: re.Pattern[str]
+    max_body_bytes: int
+    media_types: frozenset[str]
+    setting: str
+    """The setting that sets the limit, named in the 413 message."""
+
+
+def _media(content_type: str) -> str:
+    return content_type.split(";", 1)[0].strip().lower()
+
+
 class BodyGuard:
-    """Pure ASGI middleware: refuses oversize and non-JSON bodies before anything parses them.
+    """Pure ASGI middleware: refuses oversize and wrongly typed bodies before anything parses them.
 
     Content-Length is checked first (cheap rejection of honest clients); the body is then read here, counting
-    bytes as they stream, so a chunked or lying client is cut off at `max_body_bytes` too. The body is
-    buffered (it is at most `max_body_bytes`) and replayed to the application.
+    bytes as they stream, so a chunked or lying client is cut off at the limit too. The body is buffered (it is
+    at most the limit) and replayed to the application. Bodies must be JSON, except on `uploads` routes, which
+    accept their own media types up to their own limit.
     """
 
-    def __init__(self, app: ASGIApp, max_body_bytes: int) -> None:
+    def __init__(self, app: ASGIApp, max_body_bytes: int, uploads: tuple[UploadRoute, ...] = ()) -> None:
         self.app = app
         self.max_body_bytes = max_body_bytes
+        self.uploads = uploads
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http" or scope["method"] not in ("POST", "PUT", "PATCH"):
@@ -155,6 +174,9 @@ class BodyGuard:
             return
         headers = {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope["headers"]}
         path = scope.get("path", "")
+        upload = next((u for u in self.uploads if scope["method"] == "POST" and u.path.fullmatch(path)), None)
+        limit = self.max_body_bytes if upload is None else upload.max_body_bytes
+        setting = "max_body_bytes" if upload is None else upload.setting
         declared = headers.get("content-length")
         if declared is not None:
             try:
@@ -162,8 +184,8 @@ class BodyGuard:
             except ValueError:
                 await self._reply(scope, receive, send, 400, "bad-request", "Content-Length is not a number.")
                 return
-            if declared_bytes > self.max_body_bytes:
-                await self._too_large(scope, receive, send)
+            if declared_bytes > limit:
+                await self._too_large(scope, receive, send, limit, setting)
                 return
         chunks: list[bytes] = []
         size = 0
@@ -174,14 +196,20 @@ class BodyGuard:
                 return
             chunk = message.get("body", b"")
             size += len(chunk)
-            if size > self.max_body_bytes:
-                await self._too_large(scope, receive, send)
+            if size > limit:
+                await self._too_large(scope, receive, send, limit, setting)
                 return
             chunks.append(chunk)
             more = message.get("more_body", False)
         body = b"".join(chunks)
-        if body and not _is_json(headers.get("content-type", "")):
-            given = headers.get("content-type") or "none"
+        content_type = headers.get("content-type", "")
+        given = content_type or "none"
+        if upload is not None and _media(content_type) not in upload.media_types:
+            accepted = ", ".join(sorted(upload.media_types))
+            detail = f"{path} accepts {accepted}; got Content-Type {given}."
+            await self._reply(scope, receive, send, 415, "unsupported-media-type", detail)
+            return
+        if upload is None and body and not _is_json(content_type):
             detail = f"Request bodies must be JSON (Content-Type: application/json); got {given} for {path}."
             await self._reply(scope, receive, send, 415, "unsupported-media-type", detail)
             return
@@ -196,8 +224,8 @@ class BodyGuard:
 
         await self.app(scope, replay, send)
 
-    async def _too_large(self, scope: Scope, receive: Receive, send: Send) -> None:
-        detail = f"The request body exceeds the limit of {self.max_body_bytes} bytes (setting max_body_bytes)."
+    async def _too_large(self, scope: Scope, receive: Receive, send: Send, limit: int, setting: str) -> None:
+        detail = f"The request body exceeds the limit of {limit} bytes (setting {setting})."
         await self._reply(scope, receive, send, 413, "body-too-large", detail, headers={"Connection": "close"})
 
     @staticmethod

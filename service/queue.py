@@ -13,6 +13,9 @@ the change that prompted the request.
   instead of per frame) and an idle camera's frame is answered as soon as a worker is free. Measuring is
   idempotent (a recomputed frame overwrites its result and replaces its violation events).
 - `calibration`: solves.
+- `pose`: one job per image frame (pose inference, the expensive step), with a deterministic job id
+  (`pose-<frame uuid>`) so re-enqueueing every image frame still waiting (a worker restarting) never queues one
+  twice. Pose jobs store their people only while the frame is still `detecting`, so a duplicate run is harmless.
 """
 
 from __future__ import annotations
@@ -30,6 +33,8 @@ import redis
 from redis.backoff import ExponentialBackoff
 from redis.retry import Retry
 from rq import Queue
+from rq.exceptions import InvalidJobOperation, NoSuchJobError
+from rq.job import Job, JobStatus
 
 from service.dispatch import DispatchUnavailableError
 
@@ -38,18 +43,21 @@ if TYPE_CHECKING:
 
 FRAMES_QUEUE = "frames"
 CALIBRATION_QUEUE = "calibration"
-# Frames first: measuring is cheap and latency-bound, solves are slow and can wait for a free moment.
-QUEUES = (FRAMES_QUEUE, CALIBRATION_QUEUE)
+POSE_QUEUE = "pose"
+# Frames first: measuring is cheap and latency-bound; pose and solves are slow and can wait for a free moment.
+QUEUES = (FRAMES_QUEUE, POSE_QUEUE, CALIBRATION_QUEUE)
 
 # Jobs are named by dotted path: the service must not import the workers package (it pulls in the geometry).
 MEASURE_FRAMES_JOB = "workers.jobs.measure_frames"
 CALIBRATE_CAMERA_JOB = "workers.jobs.calibrate_camera"
+DETECT_PEOPLE_JOB = "workers.jobs.detect_people"
 
 # A measuring job stops taking new chunks after FRAMES_JOB_BUDGET_S (and queues its own re-run), so one busy
 # camera cannot hold a worker while other cameras wait.
 FRAMES_JOB_BUDGET_S = 5
 FRAMES_JOB_TIMEOUT_S = 120
 CALIBRATION_JOB_TIMEOUT_S = 600
+POSE_JOB_TIMEOUT_S = 300
 # A lock outlives its job's timeout, so only a worker that died mid-job (killed, machine lost) leaves one behind,
 # and it expires on its own rather than blocking the camera for ever. Measuring jobs refresh theirs per chunk.
 FRAMES_LOCK_TTL_S = FRAMES_JOB_TIMEOUT_S + 60
@@ -65,6 +73,7 @@ _MAX_SOCKET_PATH = 100
 
 
 _REDIS_ERRORS = (redis.ConnectionError, redis.TimeoutError)
+_WAITING = frozenset({JobStatus.QUEUED, JobStatus.DEFERRED, JobStatus.SCHEDULED})
 _JOBS = {
     FRAMES_QUEUE: (MEASURE_FRAMES_JOB, FRAMES_JOB_TIMEOUT_S),
     CALIBRATION_QUEUE: (CALIBRATE_CAMERA_JOB, CALIBRATION_JOB_TIMEOUT_S),
@@ -289,6 +298,19 @@ class CameraGate:
 # --------------------------------------------------------------------------------------------------- dispatcher
 
 
+def pose_job_id(frame_id: uuid.UUID | str) -> str:
+    """RQ job ids allow only letters, digits, '-' and '_', which a UUID satisfies."""
+    return f"pose-{frame_id}"
+
+
+def _job_status(connection: redis.Redis, job_id: str) -> JobStatus | None:
+    try:
+        return Job.fetch(job_id, connection=connection).get_status()
+    except (NoSuchJobError, InvalidJobOperation):
+        # Gone, or finished and deleted (result_ttl=0) between the fetch and the status read: no job waits.
+        return None
+
+
 def new_job_id(kind: str, camera_id: str) -> str:
     """Unique per job: a finished job's id must not collide with the re-run it schedules.
 
@@ -310,6 +332,7 @@ class RedisDispatcher:
         self.queues = {
             FRAMES_QUEUE: Queue(FRAMES_QUEUE, connection=connection),
             CALIBRATION_QUEUE: Queue(CALIBRATION_QUEUE, connection=connection),
+            POSE_QUEUE: Queue(POSE_QUEUE, connection=connection),
         }
         self.gates = {
             FRAMES_QUEUE: CameraGate(connection, FRAMES_QUEUE, lock_ttl_s=FRAMES_LOCK_TTL_S),
@@ -330,6 +353,32 @@ class RedisDispatcher:
             return sum(self.request(FRAMES_QUEUE, camera_id) == RequestOutcome.ENQUEUED for camera_id in camera_ids)
         except _REDIS_ERRORS as exc:
             raise DispatchUnavailableError(f"job queue unavailable: {exc}") from exc
+
+    def image_stored(self, camera_id: str, frame_id: uuid.UUID) -> None:
+        """Queue the image frame's pose job unless one is already waiting for it."""
+        self.images_pending([(camera_id, frame_id)])
+
+    def images_pending(self, frames: Iterable[tuple[str, uuid.UUID]]) -> int:
+        """Queue pose jobs for (camera_id, frame_id) pairs; returns how many were actually queued."""
+        queued = 0
+        try:
+            for camera_id, frame_id in frames:
+                job_id = pose_job_id(frame_id)
+                if _job_status(self.connection, job_id) in _WAITING:
+                    continue
+                self.queues[POSE_QUEUE].enqueue(
+                    DETECT_PEOPLE_JOB,
+                    str(frame_id),
+                    job_id=job_id,
+                    description=f"pose of frame {frame_id} of camera {camera_id}",
+                    job_timeout=POSE_JOB_TIMEOUT_S,
+                    result_ttl=0,
+                    failure_ttl=FAILED_JOB_TTL_S,
+                )
+                queued += 1
+        except _REDIS_ERRORS as exc:
+            raise DispatchUnavailableError(f"job queue unavailable: {exc}") from exc
+        return queued
 
     def calibration_requested(self, camera_id: str, forced: bool) -> None:
         """Ask for a solve of the camera; deduplicated per camera."""

@@ -84,6 +84,11 @@ class CameraSettings(StrictModel):
         allow_inf_nan=False,
         description="The focal length in pixels if known (then only the ground plane is solved).",
     )
+    keep_images: bool = Field(
+        default=False,
+        description="Keep posted images after their people are found, so frame overlays can be drawn. Off by "
+        "default (privacy): an image is deleted once its keypoints are stored.",
+    )
 
 
 class CameraOut(BaseModel):
@@ -97,6 +102,7 @@ class CameraOut(BaseModel):
     distance_threshold_m: float
     distance_threshold_ft: float
     known_focal_px: float | None
+    keep_images: bool
     usable_evidence_count: int = Field(description="Stored people usable as calibration evidence.")
     created_at: datetime
     updated_at: datetime
@@ -165,12 +171,15 @@ class DistanceRequest(StrictModel):
     people: list[PersonObservation]
 
 
+FrameStatus = Literal["detecting", "pending", "done", "failed"]
+
+
 class FrameAccepted(BaseModel):
     """The answer to a posted frame: where its result will appear."""
 
     frame_id: uuid.UUID
     client_frame_id: str | None
-    status: Literal["pending", "done", "failed"]
+    status: FrameStatus
     people: int
     created: bool = Field(description="False when this was a retry of a frame already stored.")
     url: str
@@ -209,16 +218,37 @@ class FrameResult(BaseModel):
     violations: list[PairDistance]
 
 
+class DetectedPersonOut(BaseModel):
+    """A person the pose model found in an image frame (index as in the result's `people`)."""
+
+    index: int
+    box_px: tuple[float, float, float, float] | None = Field(description="Detector box: left, top, right, bottom.")
+    detection_score: float | None
+    keypoints: list[tuple[float, float, float]] | None = Field(description="COCO-17 [x_px, y_px, score].")
+    shoulder_px: tuple[float, float] | None
+    ankle_px: tuple[float, float] | None
+    usable: bool = Field(description="Whether this person counts as calibration evidence.")
+    unusable_reason: str | None
+
+
 class FrameOut(BaseModel):
-    """A stored frame: `pending` until a calibration exists and a worker has measured it."""
+    """A stored frame: `detecting` (an image waiting for pose), then `pending` until a calibration exists and a
+    worker has measured it, then `done` (or `failed`, with `error`)."""
 
     frame_id: uuid.UUID
     camera_id: str
     client_frame_id: str | None
+    source: Literal["keypoints", "image"]
     timestamp: datetime
     received_at: datetime
-    status: Literal["pending", "done", "failed"]
+    status: FrameStatus
     people: int
+    pose_model: str | None = Field(description="The pose model that found the people of an image frame.")
+    detections: list[DetectedPersonOut] | None = Field(
+        default=None, description="Image frames: what the pose model found, once it has run."
+    )
+    image_kept: bool = Field(description="Whether the image is stored (the camera's keep_images).")
+    links: dict[str, str] = Field(description="Related resources: overlay and top-down pictures.")
     calibration_version: int | None
     processed_at: datetime | None
     error: str | None

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from functools import lru_cache
 from pathlib import Path
+from typing import Literal
 
 from pydantic import Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -56,6 +57,18 @@ class Settings(BaseSettings):
         description="Largest request body the API reads, in bytes; larger bodies are rejected with 413 before "
         "they are parsed. The default fits a frame of `max_people_per_frame` people with full COCO-17 keypoints.",
     )
+    max_image_bytes: int = Field(
+        default=20 * 1024 * 1024,
+        ge=1024,
+        description="Largest image upload (`POST .../frames`) in bytes; larger ones are refused with 413 before "
+        "they are read to the end.",
+    )
+    max_image_pixels: int = Field(
+        default=40_000_000,
+        ge=1,
+        description="Most pixels (width x height, read from the header before decoding) an uploaded image may "
+        "have; larger ones, such as decompression bombs, are refused with 413 without being decoded.",
+    )
     calibration_min_people: int = Field(
         default=30,
         ge=3,
@@ -81,6 +94,31 @@ class Settings(BaseSettings):
         default=None,
         description="Directory of the Alembic migration scripts. Unset: `migrations/` of the source checkout "
         "the service runs from (editable installs); set it only when running from a plain wheel install.",
+    )
+    model_dir: Path = Field(
+        default=Path("~/.cache/posemetry/models"),
+        description="Directory holding the pose-model ONNX files (person detector and MoveNet), each checked "
+        "against its pinned sha256 when loaded. `posemetry models fetch --dir DIR` fills it and `posemetry models "
+        "check --dir DIR` verifies it; tests and CI point it at the repository's sibling `../shared/models`.",
+    )
+    pose_model: Literal["thunder", "lightning"] = Field(
+        default="thunder",
+        description="Per-person pose model: `thunder` (MoveNet Thunder, 256 px crops, more accurate) or "
+        "`lightning` (MoveNet Lightning, 192 px crops, about 3x faster per person, less reliable ankles).",
+    )
+    detector_input_px: int = Field(
+        default=640,
+        ge=32,
+        le=2048,
+        multiple_of=32,
+        description="Side of the square the person detector sees the frame at (a multiple of 32). 640 finds "
+        "distant pedestrians the native 320 misses; larger finds more small people at quadratic CPU cost.",
+    )
+    inference_threads: int | None = Field(
+        default=None,
+        ge=1,
+        description="CPU threads each onnxruntime session may use. Unset: the number of cores this process may "
+        "run on; lower it when several workers share a machine.",
     )
 
     @field_validator("data_dir")

@@ -1,6 +1,8 @@
-"""The RQ jobs: measure a camera's pending frames (`measure_frames`) and solve a camera (`calibrate_camera`).
+"""The RQ jobs: find the people in an image frame (`detect_people`), measure a camera's pending frames
+(`measure_frames`) and solve a camera (`calibrate_camera`).
 
-Both are gated per camera (service.queue.CameraGate) and safe to run more than once: a frame's result is
+Measuring and solving are gated per camera (service.queue.CameraGate); all three are safe to run more than once:
+a pose job stores people only while its frame is still `detecting`, a frame's result is
 overwritten and its violation events replaced, and a solve appends a version whose promotion to current follows
 a rule (`at_least_as_supported`), not arrival order. Database transactions are kept short and never span a solve
 or a batch's arithmetic: reads use deferred transactions, and on SQLite every writing transaction holds the one
@@ -13,6 +15,7 @@ import logging
 import math
 import os
 import time
+import uuid
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
@@ -22,7 +25,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from service.queue import CALIBRATION_QUEUE, FRAMES_JOB_BUDGET_S, FRAMES_QUEUE, RedisDispatcher, new_job_id
 from service.settings import Settings, get_settings
-from service.store import CalibrationVersion, Camera, make_engine, make_session_factory
+from service.store import CalibrationVersion, Camera, Frame, make_engine, make_session_factory
 from service.store.models import clip_reason
 from service.store.repository import (
     CalibrationValues,
@@ -30,8 +33,11 @@ from service.store.repository import (
     add_calibration,
     calibration_due,
     current_calibration,
+    frame_image,
     frames_observations,
     pending_frames,
+    record_detection_failure,
+    record_detections,
     record_frame_outcomes,
     sample_evidence,
 )
@@ -89,6 +95,20 @@ def preload() -> None:
     import service.results  # noqa: F401
 
 
+def preload_pose(settings: Settings) -> None:
+    """Load the pose models now (a pose worker's first job should not pay ~0.5 s), and say loudly if they are
+    missing; the worker still serves its other queues, and image frames fail with the same message."""
+    from service.pose.model_files import ModelFilesError
+    from service.pose.pipeline import load_pose_estimator
+
+    try:
+        estimator = load_pose_estimator(settings)
+    except ModelFilesError as exc:
+        log.error("pose models unavailable, image frames will fail until they are installed: %s", exc)
+        return
+    log.info("pose estimator %s loaded", estimator.name)
+
+
 @contextmanager
 def _transaction(settings: Settings) -> Iterator[Session]:
     with session_factory(settings)() as session, session.begin():
@@ -122,6 +142,55 @@ def _gated(kind: str, camera_id: str, work: Callable[[RedisDispatcher, str, bool
         next_job_id = new_job_id(kind, camera_id)
         if gate.finish(camera_id, job_id, next_job_id):
             dispatcher.enqueue(kind, camera_id, next_job_id)
+
+
+# --------------------------------------------------------------------------------------------------- pose
+
+
+def detect_people(frame_id: str) -> str:
+    """Run pose inference on an image frame, store its people (the image goes unless the camera keeps images),
+    then have the camera's pending frames measured.
+
+    The estimator is loaded once per worker process (`load_pose_estimator` caches it). A picture that cannot be
+    analysed, or missing model files, fail this frame with the reason, not the worker.
+    """
+    from service.images import ImageError, decode
+    from service.keypoints import person_from_detection
+    from service.pose.model_files import ModelFilesError
+    from service.pose.pipeline import load_pose_estimator
+
+    settings = get_settings()
+    frame_uuid = uuid.UUID(frame_id)
+    with read_session_factory(settings)() as session:
+        frame = session.get(Frame, frame_uuid)
+        if frame is None:
+            return GONE  # its camera was deleted after the frame was queued
+        if frame.status != "detecting":
+            return SKIPPED  # a duplicate run: the people are already stored
+        camera = session.get(Camera, frame.camera_id)
+        image = frame_image(session, frame_uuid)
+        data = None if image is None else image.data
+    if camera is None:
+        return GONE
+    try:
+        if data is None:
+            raise ImageError("the frame's image is no longer stored")
+        _header, bgr = decode(data, max_pixels=settings.max_image_pixels)
+        estimator = load_pose_estimator(settings)
+        found = estimator(bgr)
+    except (ImageError, ModelFilesError) as exc:
+        log.warning("pose of frame %s of camera %s failed: %s", frame_id, camera.id, exc)
+        with _transaction(settings) as session:
+            record_detection_failure(session, frame_uuid, str(exc))
+        return FAILED
+    size = (camera.image_width_px, camera.image_height_px)
+    people = [person_from_detection(person, size) for person in found[: settings.max_people_per_frame]]
+    with _transaction(settings) as session:
+        stored = record_detections(session, frame_uuid, people, pose_model=estimator.name)
+    if stored is None:
+        return SKIPPED
+    _dispatcher(settings).measure_requested([camera.id])
+    return DONE
 
 
 # --------------------------------------------------------------------------------------------------- frames

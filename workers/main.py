@@ -16,9 +16,9 @@ from dataclasses import dataclass
 
 from rq import Queue, SimpleWorker, Worker
 
-from service.queue import QUEUES, RedisDispatcher, connect, redis_url, wait_for_redis
+from service.queue import POSE_QUEUE, QUEUES, RedisDispatcher, connect, redis_url, wait_for_redis
 from service.settings import Settings, get_settings
-from service.store.repository import calibration_due, cameras_with_pending_frames, list_cameras
+from service.store.repository import calibration_due, cameras_with_pending_frames, frames_detecting, list_cameras
 from workers import jobs
 
 log = logging.getLogger(__name__)
@@ -34,6 +34,8 @@ class Requeued:
 
     frames: int
     """Cameras whose pending frames were queued for measuring."""
+    images: int
+    """Image frames whose pose job was queued."""
     calibrations: int
 
 
@@ -42,6 +44,7 @@ def requeue_pending(settings: Settings, dispatcher: RedisDispatcher) -> Requeued
     factory = jobs.read_session_factory(settings)
     with factory() as session:
         frames = dispatcher.measure_requested(cameras_with_pending_frames(session))
+        images = dispatcher.images_pending(frames_detecting(session))
     calibrations = 0
     after: str | None = None
     while True:
@@ -62,7 +65,7 @@ def requeue_pending(settings: Settings, dispatcher: RedisDispatcher) -> Requeued
         if len(cameras) < _PAGE:
             break
         after = cameras[-1].id
-    return Requeued(frames=frames, calibrations=calibrations)
+    return Requeued(frames=frames, images=images, calibrations=calibrations)
 
 
 def run_worker(
@@ -81,10 +84,17 @@ def run_worker(
     """
     settings = settings or get_settings()
     jobs.preload()
+    if POSE_QUEUE in queues:
+        jobs.preload_pose(settings)
     connection = connect(redis_url(settings))
     wait_for_redis(connection, timeout_s=REDIS_START_TIMEOUT_S)
     requeued = requeue_pending(settings, RedisDispatcher(connection))
-    log.info("requested measuring for %d cameras and %d due calibrations", requeued.frames, requeued.calibrations)
+    log.info(
+        "requested measuring for %d cameras, pose for %d image frames and %d due calibrations",
+        requeued.frames,
+        requeued.images,
+        requeued.calibrations,
+    )
     # Forked children must open their own database connections, never inherit the parent's.
     jobs.dispose_engines()
     worker_class = Worker if fork else SimpleWorker

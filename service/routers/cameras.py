@@ -33,6 +33,7 @@ def camera_out(camera: Camera) -> CameraOut:
         distance_threshold_m=camera.distance_threshold_m,
         distance_threshold_ft=camera.distance_threshold_m / METRES_PER_FOOT,
         known_focal_px=camera.known_focal_px,
+        keep_images=camera.keep_images,
         usable_evidence_count=camera.usable_evidence_count,
         created_at=camera.created_at,
         updated_at=camera.updated_at,
@@ -56,6 +57,7 @@ def put_camera(
     """
     before = repository.get_camera(session, camera_id)
     old = None
+    before_keeps_images = before is not None and before.keep_images
     if before is not None:
         old = (
             before.image_width_px,
@@ -73,7 +75,10 @@ def put_camera(
         equal_focal=body.equal_focal,
         distance_threshold_m=body.distance_threshold.metres,
         known_focal_px=body.known_focal_px,
+        keep_images=body.keep_images,
     )
+    if before_keeps_images and not body.keep_images:
+        repository.delete_kept_images(session, camera_id)  # privacy: stopping keeping images forgets the kept ones
     resolve = False
     if old is not None:
         if old[:2] != (body.image_width_px, body.image_height_px):

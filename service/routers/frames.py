@@ -1,17 +1,30 @@
-"""Keypoint frames in (stored, then dispatched), and their results out."""
+"""Frames in (keypoints, or images for the pose workers; stored, then dispatched), and their results out."""
 
 from __future__ import annotations
 
+import re
 import uuid
 from typing import Annotated
 
-from fastapi import APIRouter, Path, Response, status
+from fastapi import APIRouter, Path, Query, Request, Response, status
+from pydantic import AwareDatetime
+from starlette.concurrency import run_in_threadpool
 
-from service.dispatch import UNAVAILABLE_ERRORS
-from service.problems import ProblemError
-from service.schemas import FrameAccepted, FrameOut, FrameResult, KeypointFrame
+from service.dispatch import UNAVAILABLE_ERRORS, Dispatcher
+from service.images import ImageError, ImageTooLargeError, decode
+from service.problems import ProblemError, UploadRoute
+from service.schemas import (
+    CLIENT_FRAME_ID_PATTERN,
+    DetectedPersonOut,
+    FrameAccepted,
+    FrameOut,
+    FrameResult,
+    KeypointFrame,
+)
+from service.settings import Settings
 from service.store import repository
-from service.store.models import Frame
+from service.store.models import Frame, Observation
+from service.uploads import OPENAPI_REQUEST_BODY, UPLOAD_TYPES, Upload, read_upload
 
 from .common import (
     CameraIdPath,
@@ -85,6 +98,106 @@ def post_keypoints(
                 frame_id=frame.id,
                 url=url,
             ) from exc
+    return _accepted(frame, created, url, response)
+
+
+# --------------------------------------------------------------------------------------------------- images
+
+# Room for a multipart form's boundaries and small fields on top of the image itself.
+MULTIPART_OVERHEAD_BYTES = 64 * 1024
+
+
+def upload_route(settings: Settings) -> UploadRoute:
+    """The image POST's body rules, for BodyGuard (which otherwise only lets JSON through)."""
+    return UploadRoute(
+        path=re.compile(r"/v1/cameras/[^/]+/frames"),
+        max_body_bytes=settings.max_image_bytes + MULTIPART_OVERHEAD_BYTES,
+        media_types=UPLOAD_TYPES,
+        setting="max_image_bytes",
+    )
+
+
+@router.post(
+    "/{camera_id}/frames",
+    status_code=status.HTTP_202_ACCEPTED,
+    response_model=FrameAccepted,
+    openapi_extra={"requestBody": OPENAPI_REQUEST_BODY},
+    responses={200: {"description": "A retry of a frame already stored (same client frame_id)"}},
+)
+async def post_image(
+    camera_id: CameraIdPath,
+    request: Request,
+    response: Response,
+    settings: SettingsDep,
+    dispatcher: DispatcherDep,
+    timestamp: Annotated[
+        AwareDatetime | None, Query(description="When the frame was taken (RFC 3339 with zone). Default: now.")
+    ] = None,
+    frame_id: Annotated[
+        str | None,
+        Query(pattern=CLIENT_FRAME_ID_PATTERN, description="The client's id: a retry with it is the same frame."),
+    ] = None,
+) -> FrameAccepted:
+    """Store one JPEG or PNG frame (raw body, or multipart with an `image` file), then queue its pose job.
+
+    The picture is checked here (type, size against the pixel budget before decoding, a complete decode, the
+    camera's image size), so a bad image is a 4xx now rather than a failed frame later. It is kept only until
+    its people are found, unless the camera keeps images. The frame is then read exactly like a keypoint frame.
+    """
+    upload = await read_upload(request, timestamp=timestamp, frame_id=frame_id)
+    return await run_in_threadpool(_store_image, request, camera_id, upload, response, settings, dispatcher)
+
+
+def _store_image(
+    request: Request,
+    camera_id: str,
+    upload: Upload,
+    response: Response,
+    settings: Settings,
+    dispatcher: Dispatcher,
+) -> FrameAccepted:
+    with request.app.state.read_session_factory() as session:
+        camera = require_camera(session, camera_id)
+    try:
+        header, _image = decode(upload.data, max_pixels=settings.max_image_pixels)
+    except ImageTooLargeError as exc:
+        raise ProblemError(413, "image-too-large", f"{str(exc)[0].upper()}{str(exc)[1:]}.") from exc
+    except ImageError as exc:
+        raise ProblemError(422, "invalid-image", f"Invalid image: {exc}.") from exc
+    if (header.width_px, header.height_px) != (camera.image_width_px, camera.image_height_px):
+        raise ProblemError(
+            422,
+            "image-size-mismatch",
+            f"The image is {header.width_px}x{header.height_px} px, but camera {camera_id!r} is configured for "
+            f"{camera.image_width_px}x{camera.image_height_px} px (a calibration holds for one image size).",
+        )
+    with request.app.state.session_factory() as session:
+        try:
+            frame, created = repository.add_image_frame(
+                session,
+                camera,
+                timestamp=upload.timestamp,
+                content_type=header.content_type,
+                width_px=header.width_px,
+                height_px=header.height_px,
+                data=upload.data,
+                client_frame_id=upload.frame_id,
+            )
+        except repository.CameraNotFoundError:
+            raise camera_not_found(camera_id) from None
+        session.commit()
+    url = frame_url(camera_id, frame.id)
+    if created or frame.status == "detecting":
+        try:
+            dispatcher.image_stored(camera_id, frame.id)
+        except UNAVAILABLE_ERRORS as exc:
+            raise queue_unavailable(
+                "the image is stored and will be processed when the queue is back.", exc, frame_id=frame.id, url=url
+            ) from exc
+    return _accepted(frame, created, url, response)
+
+
+def _accepted(frame: Frame, created: bool, url: str, response: Response) -> FrameAccepted:
     response.status_code = status.HTTP_202_ACCEPTED if created else status.HTTP_200_OK
     response.headers["Location"] = url
     return FrameAccepted(
@@ -97,15 +210,27 @@ def post_keypoints(
     )
 
 
-def frame_out(frame: Frame) -> FrameOut:
+# --------------------------------------------------------------------------------------------------- reading
+
+
+def frame_out(frame: Frame, detections: list[DetectedPersonOut] | None, image_kept: bool) -> FrameOut:
+    url = frame_url(frame.camera_id, frame.id)
+    links = {"topdown": f"{url}/topdown.png"}
+    if image_kept:
+        links["overlay"] = f"{url}/overlay.png"
     return FrameOut(
         frame_id=frame.id,
         camera_id=frame.camera_id,
         client_frame_id=frame.client_frame_id,
+        source=frame.source,  # type: ignore[arg-type]
         timestamp=frame.timestamp,
         received_at=frame.received_at,
         status=frame.status,  # type: ignore[arg-type]
         people=frame.people,
+        pose_model=frame.pose_model,
+        detections=detections,
+        image_kept=image_kept,
+        links=links,
         calibration_version=frame.calibration_version,
         processed_at=frame.processed_at,
         error=frame.error,
@@ -124,4 +249,22 @@ def get_frame(
     frame = repository.get_frame(session, camera_id, frame_id)
     if frame is None:
         raise ProblemError(404, "frame-not-found", f"Camera {camera_id!r} has no frame {frame_id}.")
-    return frame_out(frame)
+    detections = None
+    if frame.source == "image" and frame.status != "detecting":
+        detections = [_detection_out(o) for o in repository.frame_observations(session, frame_id)]
+    return frame_out(frame, detections, image_kept=repository.frame_image_kept(session, frame_id))
+
+
+def _detection_out(person: Observation) -> DetectedPersonOut:
+    shoulder, ankle = (person.shoulder_x_px, person.shoulder_y_px), (person.ankle_x_px, person.ankle_y_px)
+    keypoints = person.keypoints
+    return DetectedPersonOut(
+        index=person.person_index,
+        box_px=person.box_px,
+        detection_score=person.detection_score,
+        keypoints=None if keypoints is None else [(k[0], k[1], k[2]) for k in keypoints],
+        shoulder_px=None if None in shoulder else shoulder,  # type: ignore[arg-type]
+        ankle_px=None if None in ankle else ankle,  # type: ignore[arg-type]
+        usable=person.usable,
+        unusable_reason=person.unusable_reason,
+    )

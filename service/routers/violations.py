@@ -5,10 +5,12 @@ from __future__ import annotations
 from datetime import UTC, datetime, timedelta
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, Query
+from fastapi import APIRouter, Query, Response
 from pydantic import AwareDatetime
 
+from service.pictures import heatmap_png
 from service.problems import ProblemError
+from service.render.heatmap import ViolationPoint
 from service.schemas import ViolationBucketOut, ViolationCounts
 from service.store import repository
 from service.store.repository import HOUR_S, MINUTE_S
@@ -23,31 +25,41 @@ DEFAULT_WINDOW = {"minute": timedelta(hours=1), "hour": timedelta(days=1)}
 MAX_BUCKETS = 10_000
 
 
-@router.get("/{camera_id}/violations", response_model=ViolationCounts)
-def get_violations(
-    camera_id: CameraIdPath,
-    session: ReadSessionDep,
-    since: Annotated[
-        AwareDatetime | None, Query(description="Window start (RFC 3339 with zone). Default: 1 h (minute) / 1 day.")
-    ] = None,
-    until: Annotated[AwareDatetime | None, Query(description="Window end, exclusive. Default: now.")] = None,
-    bucket: Annotated[Literal["minute", "hour"], Query(description="Bucket width.")] = "minute",
-) -> ViolationCounts:
-    """How many pairs were closer than the camera's threshold, per UTC-aligned minute or hour."""
-    require_camera(session, camera_id)
+def _window(since: datetime | None, until: datetime | None, bucket: str) -> tuple[datetime, datetime]:
+    """The window in UTC, defaulted from the bucket width, and refused when empty or with too many buckets."""
     until = (until or datetime.now(UTC)).astimezone(UTC)
     since = (since or until - DEFAULT_WINDOW[bucket]).astimezone(UTC)
     if since >= until:
         raise ProblemError(
             422, "invalid-window", f"`since` ({since.isoformat()}) must be before `until` ({until.isoformat()})."
         )
-    bucket_s = BUCKET_S[bucket]
-    if (until - since).total_seconds() / bucket_s > MAX_BUCKETS:
+    if (until - since).total_seconds() / BUCKET_S[bucket] > MAX_BUCKETS:
         raise ProblemError(
             422,
             "window-too-large",
-            f"The window spans more than {MAX_BUCKETS} {bucket}s; narrow it or use bucket=hour.",
+            f"The window spans more than {MAX_BUCKETS} {bucket}s; narrow it or use a wider bucket.",
         )
+    return since, until
+
+
+SinceQuery = Annotated[
+    AwareDatetime | None, Query(description="Window start (RFC 3339 with zone). Default: 1 h (minute) / 1 day.")
+]
+UntilQuery = Annotated[AwareDatetime | None, Query(description="Window end, exclusive. Default: now.")]
+
+
+@router.get("/{camera_id}/violations", response_model=ViolationCounts)
+def get_violations(
+    camera_id: CameraIdPath,
+    session: ReadSessionDep,
+    since: SinceQuery = None,
+    until: UntilQuery = None,
+    bucket: Annotated[Literal["minute", "hour"], Query(description="Bucket width.")] = "minute",
+) -> ViolationCounts:
+    """How many pairs were closer than the camera's threshold, per UTC-aligned minute or hour."""
+    require_camera(session, camera_id)
+    since, until = _window(since, until, bucket)
+    bucket_s = BUCKET_S[bucket]
     counts = repository.violation_counts(session, camera_id, since=since, until=until, bucket_s=bucket_s)
     return ViolationCounts(
         camera_id=camera_id,
@@ -58,3 +70,33 @@ def get_violations(
         total=sum(c.count for c in counts),
         buckets=[ViolationBucketOut(start=c.start, count=c.count) for c in counts],
     )
+
+
+# The heat map draws at most this many events (the newest), so a busy camera's year stays one quick picture.
+HEATMAP_MAX_EVENTS = 50_000
+
+
+@router.get(
+    "/{camera_id}/violations/heatmap.png",
+    response_class=Response,
+    responses={200: {"content": {"image/png": {}}, "description": "The heat map (PNG)"}},
+)
+def get_violation_heatmap(
+    camera_id: CameraIdPath,
+    session: ReadSessionDep,
+    since: SinceQuery = None,
+    until: UntilQuery = None,
+    bucket: Annotated[Literal["minute", "hour"], Query(description="Width of the time-strip bars.")] = "minute",
+    size_px: Annotated[int, Query(ge=200, le=2000, description="Side of the map in pixels.")] = 800,
+) -> Response:
+    """Where violations happened on the ground (density, from the measured positions) and when (counts per bucket).
+
+    At most the newest 50 000 events of the window are drawn.
+    """
+    require_camera(session, camera_id)
+    since, until = _window(since, until, bucket)
+    places = repository.violation_places(session, camera_id, since=since, until=until, limit=HEATMAP_MAX_EVENTS)
+    session.rollback()
+    points = [ViolationPoint.between(p.timestamp, p.ground_i_m, p.ground_j_m) for p in places]
+    png = heatmap_png(points, since=since, until=until, bucket=bucket, size_px=size_px)
+    return Response(png, media_type="image/png")

@@ -58,9 +58,13 @@ CLIENT_FRAME_ID_MAX_LENGTH = 128
 REASON_MAX_LENGTH = 200
 
 
-def clip_reason(message: str) -> str:
+# frames.error is TEXT; a cap keeps one bad frame from storing a novel, but leaves room for the fix to be named.
+FRAME_ERROR_MAX_LENGTH = 1000
+
+
+def clip_reason(message: str, limit: int = REASON_MAX_LENGTH) -> str:
     """A reason cut to fit its column, keeping the start, which says what went wrong."""
-    return message if len(message) <= REASON_MAX_LENGTH else message[: REASON_MAX_LENGTH - 3] + "..."
+    return message if len(message) <= limit else message[: limit - 3] + "..."
 
 
 # The sampling grid over the image: cell = row * GRID_COLS + col of the ankle centre. Part of the stored data's

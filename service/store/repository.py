@@ -26,6 +26,7 @@ from sqlalchemy.orm import Session, make_transient_to_detached
 from .models import (
     CALIBRATION_STATUSES,
     DEFAULT_DISTANCE_THRESHOLD_M,
+    FRAME_ERROR_MAX_LENGTH,
     FRAME_STATUSES,
     GRID_CELLS,
     GRID_COLS,
@@ -34,8 +35,10 @@ from .models import (
     CalibrationVersion,
     Camera,
     Frame,
+    FrameImage,
     Observation,
     ViolationEvent,
+    clip_reason,
     pack_keypoints,
     utc_now,
 )
@@ -274,6 +277,7 @@ def upsert_camera(
     equal_focal: bool = True,
     distance_threshold_m: float = DEFAULT_DISTANCE_THRESHOLD_M,
     known_focal_px: float | None = None,
+    keep_images: bool = False,
     now: datetime | None = None,
 ) -> tuple[Camera, bool]:
     """Create or update a camera's settings; returns (camera, created) so PUT can answer 201 or 200.
@@ -291,6 +295,7 @@ def upsert_camera(
         "equal_focal": equal_focal,
         "distance_threshold_m": distance_threshold_m,
         "known_focal_px": known_focal_px,
+        "keep_images": keep_images,
     }
     camera = session.get(Camera, camera_id)
     if camera is None:
@@ -457,6 +462,126 @@ def add_keypoint_frame(
     make_transient_to_detached(frame)
     session.add(frame)
     return frame, True
+
+
+def add_image_frame(
+    session: Session,
+    camera: Camera,
+    *,
+    timestamp: datetime,
+    content_type: str,
+    width_px: int,
+    height_px: int,
+    data: bytes,
+    client_frame_id: str | None = None,
+    received_at: datetime | None = None,
+) -> tuple[Frame, bool]:
+    """Store an image frame, `detecting` until its pose job has run; returns (frame, created) like keypoint frames.
+
+    The picture goes to `frame_images`, the pose job's input; `record_detections` deletes it afterwards unless
+    the camera keeps images. A retry with the same client frame id stores nothing.
+    """
+    if timestamp.tzinfo is None or timestamp.utcoffset() is None:
+        raise ValueError(f"timestamp {timestamp!r} has no timezone: the store keeps UTC instants")
+    if client_frame_id is not None:
+        existing = _frame_by_client_id(session, camera.id, client_frame_id)
+        if existing is not None:
+            return existing, False
+    frame = Frame(
+        id=uuid.uuid4(),
+        camera_id=camera.id,
+        client_frame_id=client_frame_id,
+        timestamp=timestamp,
+        received_at=received_at or utc_now(),
+        source="image",
+        status="detecting",
+        people=0,
+    )
+    image = {
+        "frame_id": frame.id,
+        "content_type": content_type,
+        "width_px": width_px,
+        "height_px": height_px,
+        "data": data,
+        "created_at": frame.received_at,
+    }
+    try:
+        with session.begin_nested():
+            session.execute(insert(_FRAMES), [_frame_row(frame)])
+            session.execute(insert(FrameImage), [image])
+    except IntegrityError:
+        existing = None if client_frame_id is None else _frame_by_client_id(session, camera.id, client_frame_id)
+        if existing is not None:
+            return existing, False
+        if session.get(Camera, camera.id) is None:
+            raise CameraNotFoundError(camera.id) from None
+        raise
+    make_transient_to_detached(frame)
+    session.add(frame)
+    return frame, True
+
+
+def frame_image(session: Session, frame_id: uuid.UUID) -> FrameImage | None:
+    return session.get(FrameImage, frame_id)
+
+
+def frame_image_kept(session: Session, frame_id: uuid.UUID) -> bool:
+    """Whether the frame's image is stored, without loading its bytes."""
+    return session.scalar(select(func.count()).where(FrameImage.frame_id == frame_id)) == 1
+
+
+def record_detections(
+    session: Session, frame_id: uuid.UUID, people: Sequence[PersonIn], *, pose_model: str
+) -> Frame | None:
+    """Store what the pose model found in an image frame and make the frame `pending` (ready to measure).
+
+    Only a frame still `detecting` is updated, so a pose job that runs twice (a retry after a crash) stores its
+    people once; returns None when there was nothing to do. The image is then deleted unless the camera keeps
+    images.
+    """
+    frame = session.get(Frame, frame_id)
+    if frame is None or frame.status != "detecting":
+        return None
+    camera = _require_camera(session, frame.camera_id)
+    claimed = session.execute(
+        update(_FRAMES)
+        .where(_FRAMES.c.id == frame_id, _FRAMES.c.status == "detecting")
+        .values(status="pending", people=len(people), pose_model=pose_model)
+    )
+    if not claimed.rowcount:  # type: ignore[attr-defined]
+        return None
+    _insert_observations(session, camera.id, _observation_rows(camera, frame_id, people))
+    if not camera.keep_images:
+        session.execute(delete(FrameImage).where(FrameImage.frame_id == frame_id))
+    session.expire_all()
+    return session.get(Frame, frame_id)
+
+
+def record_detection_failure(session: Session, frame_id: uuid.UUID, error: str) -> Frame | None:
+    """An image frame whose picture could not be analysed: `failed` with the reason; its image is dropped unless
+    the camera keeps images (then it stays for inspection)."""
+    frame = session.get(Frame, frame_id)
+    if frame is None or frame.status != "detecting":
+        return None
+    camera = _require_camera(session, frame.camera_id)
+    frame.status, frame.error, frame.processed_at = "failed", clip_reason(error, FRAME_ERROR_MAX_LENGTH), utc_now()
+    if not camera.keep_images:
+        session.execute(delete(FrameImage).where(FrameImage.frame_id == frame_id))
+    session.flush()
+    return frame
+
+
+def frames_detecting(session: Session) -> list[tuple[str, uuid.UUID]]:
+    """(camera_id, frame_id) of image frames waiting for their pose job, oldest first (worker start-up)."""
+    stmt = select(Frame.camera_id, Frame.id).where(Frame.status == "detecting").order_by(Frame.received_at, Frame.id)
+    return [(camera_id, frame_id) for camera_id, frame_id in session.execute(stmt)]
+
+
+def delete_kept_images(session: Session, camera_id: str) -> int:
+    """Forget a camera's kept images (it stopped keeping them); images still awaiting pose stay until used."""
+    done = select(Frame.id).where(Frame.camera_id == camera_id, Frame.status != "detecting")
+    result = session.execute(delete(FrameImage).where(FrameImage.frame_id.in_(done)))
+    return int(result.rowcount)  # type: ignore[attr-defined]
 
 
 def get_frame(session: Session, camera_id: str, frame_id: uuid.UUID) -> Frame | None:
@@ -841,6 +966,50 @@ def record_frame_outcomes(session: Session, outcomes: Sequence[FrameOutcome], *,
         session.execute(insert(_VIOLATION_EVENTS), violation_rows)
     session.expire_all()
     return int(updated.rowcount)  # type: ignore[attr-defined]
+
+
+@dataclass(frozen=True)
+class ViolationPlace:
+    """A violation event with where its two people stood on the ground (metres, the frame result's `ground_m`)."""
+
+    timestamp: datetime
+    ground_i_m: tuple[float, float]
+    ground_j_m: tuple[float, float]
+
+
+def violation_places(
+    session: Session, camera_id: str, *, since: datetime, until: datetime, limit: int
+) -> list[ViolationPlace]:
+    """The newest `limit` violation events in [since, until) with their people's ground positions.
+
+    Positions come from the frames' stored results (one read per frame, not per event); an event whose frame
+    has no position for either person (re-measured meanwhile, say) is left out.
+    """
+    events = session.execute(
+        select(ViolationEvent.frame_id, ViolationEvent.timestamp, ViolationEvent.person_i, ViolationEvent.person_j)
+        .where(
+            ViolationEvent.camera_id == camera_id,
+            ViolationEvent.epoch_s >= math.floor(since.timestamp()),
+            ViolationEvent.epoch_s < math.floor(until.timestamp()),
+        )
+        .order_by(ViolationEvent.epoch_s.desc(), ViolationEvent.id.desc())
+        .limit(limit)
+    ).all()
+    positions: dict[uuid.UUID, dict[int, tuple[float, float]]] = {}
+    frame_ids = list({event.frame_id for event in events})
+    for start in range(0, len(frame_ids), 500):
+        chunk = frame_ids[start : start + 500]
+        for frame_id, result in session.execute(select(Frame.id, Frame.result).where(Frame.id.in_(chunk))):
+            people = (result or {}).get("people", [])
+            positions[frame_id] = {
+                p["index"]: (float(p["ground_m"][0]), float(p["ground_m"][1])) for p in people if p.get("ground_m")
+            }
+    places = []
+    for event in events:
+        placed = positions.get(event.frame_id, {})
+        if event.person_i in placed and event.person_j in placed:
+            places.append(ViolationPlace(event.timestamp, placed[event.person_i], placed[event.person_j]))
+    return places
 
 
 def violation_counts(

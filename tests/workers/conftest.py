@@ -27,6 +27,7 @@ from service.queue import QUEUES, EmbeddedRedis, RedisDispatcher, connect
 from service.settings import get_settings
 from service.store.migrate import upgrade
 from service.store.repository import add_keypoint_frame, upsert_camera
+from tests.shared import model_dir_path
 from workers import jobs
 
 IMAGE_SIZE = (1920, 1080)
@@ -69,6 +70,7 @@ def environment(
         "POSEMETRY_DATABASE_URL": f"sqlite:///{database}",
         "POSEMETRY_REDIS_URL": redis_server.url,
         "POSEMETRY_CALIBRATION_MIN_PEOPLE": "30",
+        "POSEMETRY_MODEL_DIR": str(model_dir_path()),
     }
     for name, value in env.items():
         monkeypatch.setenv(name, value)

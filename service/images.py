@@ -1,0 +1,133 @@
+"""Posted pictures: what they are, how big they claim to be, and whether they decode, before anything keeps them.
+
+The API must answer a bad image with a 4xx at once rather than let a pose worker discover it later, and must
+not be the victim of a decompression bomb (a small file that decodes to gigapixels). So the dimensions are read
+from the header (PNG's IHDR, JPEG's SOF marker) and checked against a pixel budget *before* decoding; only then
+is the image decoded in full, which also catches truncated and corrupt files. Pure functions over bytes.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+import numpy as np
+
+JPEG = "image/jpeg"
+PNG = "image/png"
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_PNG_IEND = b"\x00\x00\x00\x00IEND\xaeB`\x82"
+# JPEG start-of-frame markers that carry the image size (baseline, progressive, lossless, arithmetic...).
+_SOF_MARKERS = frozenset({0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF})
+# Markers without a length field.
+_STANDALONE_MARKERS = frozenset({0x01, *range(0xD0, 0xD8)})
+
+
+class ImageError(ValueError):
+    """The bytes are not a usable JPEG or PNG; the message says why, for the client."""
+
+
+@dataclass(frozen=True)
+class ImageHeader:
+    content_type: str
+    width_px: int
+    height_px: int
+
+    @property
+    def pixels(self) -> int:
+        return self.width_px * self.height_px
+
+
+def sniff_content_type(data: bytes) -> str | None:
+    """The image type from the file's magic bytes (clients mislabel uploads; the bytes decide)."""
+    if data.startswith(_PNG_SIGNATURE):
+        return PNG
+    if data.startswith(b"\xff\xd8\xff"):
+        return JPEG
+    return None
+
+
+def read_header(data: bytes) -> ImageHeader:
+    """Type and size from the header alone; raises ImageError for anything else or a header cut short."""
+    if not data:
+        raise ImageError("the image is empty")
+    content_type = sniff_content_type(data)
+    if content_type == PNG:
+        width, height = _png_size(data)
+    elif content_type == JPEG:
+        width, height = _jpeg_size(data)
+    else:
+        raise ImageError("not a JPEG or PNG image (unrecognised file signature)")
+    if width <= 0 or height <= 0:
+        raise ImageError(f"the image header gives an empty size {width}x{height}")
+    return ImageHeader(content_type, width, height)
+
+
+def _png_size(data: bytes) -> tuple[int, int]:
+    # Signature (8), IHDR chunk length (4) and type (4), then width and height as big-endian uint32.
+    if len(data) < 24 or data[12:16] != b"IHDR":
+        raise ImageError("PNG without a complete IHDR header")
+    width, height = struct.unpack(">II", data[16:24])
+    return int(width), int(height)
+
+
+def _jpeg_size(data: bytes) -> tuple[int, int]:
+    offset = 2
+    while offset + 4 <= len(data):
+        if data[offset] != 0xFF:
+            raise ImageError("corrupt JPEG: marker expected")
+        marker = data[offset + 1]
+        if marker == 0xFF:  # fill byte
+            offset += 1
+            continue
+        if marker in _STANDALONE_MARKERS:
+            offset += 2
+            continue
+        if marker in (0xD9, 0xDA):  # end of image, or scan data before any frame header
+            break
+        (length,) = struct.unpack(">H", data[offset + 2 : offset + 4])
+        if marker in _SOF_MARKERS:
+            if offset + 9 > len(data):
+                break
+            height, width = struct.unpack(">HH", data[offset + 5 : offset + 9])
+            return int(width), int(height)
+        offset += 2 + length
+    raise ImageError("JPEG without a frame header (SOF marker): truncated or not an image")
+
+
+def _complete(data: bytes, content_type: str) -> bool:
+    """Whether the file has its end marker: decoders fill a truncated image with grey instead of failing."""
+    tail = data[-64:].rstrip(b"\x00")
+    if content_type == JPEG:
+        return tail.endswith(b"\xff\xd9")
+    return tail.endswith(_PNG_IEND)
+
+
+def decode(data: bytes, *, max_pixels: int) -> tuple[ImageHeader, np.ndarray]:
+    """The header and the decoded (H, W, 3) uint8 BGR image, or ImageError; refuses more than max_pixels.
+
+    Raises ImageTooLargeError (an ImageError) for the pixel budget, so callers can answer 413 rather than 422.
+    """
+    import cv2
+
+    header = read_header(data)
+    if header.pixels > max_pixels:
+        raise ImageTooLargeError(
+            f"the image is {header.width_px}x{header.height_px} = {header.pixels} pixels; at most {max_pixels} "
+            "are accepted (setting max_image_pixels)"
+        )
+    if not _complete(data, header.content_type):
+        raise ImageError(f"truncated {header.content_type.split('/')[1].upper()}: the end-of-image marker is missing")
+    image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
+    if image is None:
+        raise ImageError(f"the {header.content_type} could not be decoded (corrupt image data)")
+    if image.shape[:2] != (header.height_px, header.width_px):
+        raise ImageError(
+            f"the image decodes to {image.shape[1]}x{image.shape[0]}, not the {header.width_px}x{header.height_px} "
+            "its header declares"
+        )
+    return header, image
+
+
+class ImageTooLargeError(ImageError):
+    """More pixels than the budget allows (a decompression bomb, or simply too big)."""

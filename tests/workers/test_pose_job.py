@@ -1,0 +1,133 @@
+"""The pose job on real frames with the real ONNX models: people stored once, images dropped unless kept."""
+
+from __future__ import annotations
+
+import uuid
+from datetime import UTC, datetime
+from pathlib import Path
+
+import pytest
+import redis
+from rq import Queue
+from sqlalchemy.orm import Session, sessionmaker
+
+from service.images import read_header
+from service.queue import FRAMES_QUEUE, POSE_QUEUE, RedisDispatcher
+from service.settings import get_settings
+from service.store import Frame, Observation
+from service.store.repository import add_image_frame, frame_image, get_camera, upsert_camera
+from tests.shared import TOWN_CENTRE, model_dir_path, require_dir
+from tests.workers.conftest import run_jobs
+from workers import jobs
+from workers.main import requeue_pending
+
+CAMERA = "town"
+
+
+@pytest.fixture(scope="module")
+def town_jpeg() -> bytes:
+    require_dir(model_dir_path(), "pose model")
+    return (require_dir(TOWN_CENTRE, "Town Centre data") / "frames" / "clip_000000.jpg").read_bytes()
+
+
+def store_image(sessions: sessionmaker[Session], data: bytes, *, keep_images: bool = False) -> uuid.UUID:
+    header = read_header(data)
+    with sessions() as session, session.begin():
+        camera, _ = upsert_camera(
+            session, CAMERA, image_width_px=1920, image_height_px=1080, person_height_m=1.32, keep_images=keep_images
+        )
+        frame, _ = add_image_frame(
+            session,
+            camera,
+            timestamp=datetime(2026, 1, 1, tzinfo=UTC),
+            content_type=header.content_type,
+            width_px=header.width_px,
+            height_px=header.height_px,
+            data=data,
+        )
+    return frame.id
+
+
+def test_pose_job_stores_people_once_and_drops_the_image(
+    sessions: sessionmaker[Session], dispatcher: RedisDispatcher, connection: redis.Redis, town_jpeg: bytes
+) -> None:
+    frame_id = store_image(sessions, town_jpeg)
+    dispatcher.image_stored(CAMERA, frame_id)
+    dispatcher.image_stored(CAMERA, frame_id)
+    assert Queue(POSE_QUEUE, connection=connection).get_job_ids() == [f"pose-{frame_id}"]  # queued once
+    assert jobs.detect_people(str(frame_id)) == jobs.DONE
+    assert jobs.detect_people(str(frame_id)) == jobs.SKIPPED  # a duplicate run stores nothing more
+    with sessions() as session:
+        frame = session.get(Frame, frame_id)
+        assert frame is not None and frame.status == "pending" and frame.pose_model.startswith("rtmdet-nano")
+        people = session.query(Observation).filter_by(frame_id=frame_id).order_by(Observation.person_index).all()
+        assert frame.people == len(people) >= 10  # about 13-17 pedestrians in this frame
+        usable = [p for p in people if p.usable]
+        assert len(usable) >= 6
+        for person in people:
+            left, top, right, bottom = person.box_px
+            assert 0 <= left < right <= 1920 and 0 <= top < bottom <= 1080
+            assert 0.3 <= person.detection_score <= 1.0
+            assert person.keypoints is not None and len(person.keypoints) == 17
+        for person in usable:  # upright: ankles below shoulders, inside the box (with margin)
+            assert person.ankle_y_px > person.shoulder_y_px
+            assert person.box_px[1] - 20 <= person.shoulder_y_px and person.ankle_y_px <= person.box_px[3] + 20
+        camera = get_camera(session, CAMERA)
+        assert camera is not None and camera.usable_evidence_count == len(usable)
+        assert frame_image(session, frame_id) is None  # privacy: the picture is gone once its people are stored
+    assert Queue(FRAMES_QUEUE, connection=connection).count == 1  # measuring was requested
+
+
+def test_kept_images_stay(sessions: sessionmaker[Session], dispatcher: RedisDispatcher, town_jpeg: bytes) -> None:
+    frame_id = store_image(sessions, town_jpeg, keep_images=True)
+    assert jobs.detect_people(str(frame_id)) == jobs.DONE
+    with sessions() as session:
+        assert frame_image(session, frame_id) is not None
+
+
+def test_missing_models_fail_the_frame_with_the_fix(
+    sessions: sessionmaker[Session],
+    dispatcher: RedisDispatcher,
+    town_jpeg: bytes,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    frame_id = store_image(sessions, town_jpeg)
+    monkeypatch.setenv("POSEMETRY_MODEL_DIR", str(tmp_path / "no-models"))
+    get_settings.cache_clear()
+    assert jobs.detect_people(str(frame_id)) == jobs.FAILED
+    with sessions() as session:
+        frame = session.get(Frame, frame_id)
+        assert frame is not None and frame.status == "failed"
+        assert "rtmdet_nano_person_320.onnx" in frame.error and "posemetry models fetch" in frame.error
+
+
+def test_an_image_corrupted_in_storage_fails_only_its_frame(
+    sessions: sessionmaker[Session], dispatcher: RedisDispatcher, town_jpeg: bytes
+) -> None:
+    good = store_image(sessions, town_jpeg)
+    with sessions() as session, session.begin():
+        image = frame_image(session, good)
+        assert image is not None
+        image.data = town_jpeg[:4] + b"\x00" * 500 + b"\xff\xd9"  # what a damaged disk page might leave
+    assert jobs.detect_people(str(good)) == jobs.FAILED
+    assert _status(sessions, good) == "failed"
+    assert jobs.detect_people(str(uuid.uuid4())) == jobs.GONE
+
+
+def _status(sessions: sessionmaker[Session], frame_id: uuid.UUID) -> str:
+    with sessions() as session:
+        frame = session.get(Frame, frame_id)
+        assert frame is not None
+        return frame.status
+
+
+def test_worker_start_requeues_images_still_detecting(
+    sessions: sessionmaker[Session], dispatcher: RedisDispatcher, connection: redis.Redis, town_jpeg: bytes
+) -> None:
+    frame_id = store_image(sessions, town_jpeg)  # stored while Redis was "down": never dispatched
+    requeued = requeue_pending(get_settings(), dispatcher)
+    assert requeued.images == 1
+    assert requeue_pending(get_settings(), dispatcher).images == 0
+    run_jobs(connection)
+    assert _status(sessions, frame_id) == "pending"  # people found; waiting for a calibration
