@@ -24,6 +24,7 @@ from sqlalchemy.orm import Session, sessionmaker
 from service.cli import QUEUE_NAMES
 from service.queue import QUEUES, RedisDispatcher
 from service.store import Frame
+from tests.shared import TOWN_CENTRE, model_dir_path, require_dir
 from tests.workers.conftest import IMAGE_SIZE, PEOPLE_PER_FRAME, simulated_camera, store_frames
 
 REPO = Path(__file__).resolve().parents[2]
@@ -110,14 +111,7 @@ def test_serve_runs_everything_and_shuts_down_cleanly(
         env=env,
     )
     try:
-
-        def ready() -> bool:
-            try:
-                return _http("GET", f"{base}/readyz")[0] == 200
-            except OSError:
-                return False
-
-        _wait_for(ready, "the API to be ready", serve)
+        _wait_for(lambda: _ready(base), "the API to be ready", serve)
         camera_settings = {"image_width_px": IMAGE_SIZE[0], "image_height_px": IMAGE_SIZE[1], "person_height_m": 1.7}
         status, _ = _http("PUT", f"{base}/v1/cameras/lobby", camera_settings)
         assert status == 201
@@ -179,3 +173,54 @@ def test_serve_runs_everything_and_shuts_down_cleanly(
     assert returncode == 0
     assert (data_dir / "posemetry.sqlite3").is_file()
     assert not (data_dir / "redis" / "redis.sock").exists()  # the embedded Redis was shut down
+
+
+def test_serve_finds_people_in_posted_images(tmp_path: Path) -> None:
+    """Image frames end to end: JPEGs over HTTP, real ONNX pose in a worker, detections and an overlay back."""
+    frames = sorted((require_dir(TOWN_CENTRE, "Town Centre data") / "frames").glob("clip_*.jpg"))[:3]
+    env = {k: v for k, v in os.environ.items() if not k.startswith("POSEMETRY_")}
+    env["POSEMETRY_MODEL_DIR"] = str(require_dir(model_dir_path(), "pose model"))
+    port = _free_port()
+    base = f"http://127.0.0.1:{port}"
+    serve = subprocess.Popen(
+        [sys.executable, "-m", "service.cli", "serve", "--data-dir", str(tmp_path / "serve"), "--port", str(port)],
+        cwd=REPO,
+        env=env,
+    )
+    try:
+        _wait_for(lambda: _ready(base), "the API to be ready", serve)
+        settings = {"image_width_px": 1920, "image_height_px": 1080, "keep_images": True}
+        assert _http("PUT", f"{base}/v1/cameras/street", settings)[0] == 201
+        urls = []
+        for index, path in enumerate(frames):
+            request = urllib.request.Request(
+                f"{base}/v1/cameras/street/frames?frame_id=clip-{index}",
+                data=path.read_bytes(),
+                method="POST",
+                headers={"content-type": "image/jpeg"},
+            )
+            with urllib.request.urlopen(request, timeout=10) as response:
+                assert response.status == 202
+                urls.append(json.loads(response.read())["url"])
+
+        def detected() -> bool:
+            return all(_http("GET", f"{base}{url}")[1]["status"] != "detecting" for url in urls)
+
+        _wait_for(detected, "pose on every image", serve)
+        for url in urls:
+            frame = _http("GET", f"{base}{url}")[1]
+            assert frame["source"] == "image" and frame["pose_model"].startswith("rtmdet-nano")
+            assert frame["people"] == len(frame["detections"]) >= 8
+            assert sum(d["usable"] for d in frame["detections"]) >= 4
+            with urllib.request.urlopen(f"{base}{frame['links']['overlay']}", timeout=30) as response:
+                assert response.headers["content-type"] == "image/png"
+                assert response.read().startswith(b"\x89PNG")
+    finally:
+        assert _stop(serve) == 0
+
+
+def _ready(base: str) -> bool:
+    try:
+        return _http("GET", f"{base}/readyz")[0] == 200
+    except OSError:
+        return False
