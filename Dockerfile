@@ -22,7 +22,8 @@ COPY migrations ./migrations
 RUN pip install -e .
 
 FROM base AS models
-RUN python -m venv /opt/tf2onnx \
+RUN pip install -e '.[convert]' \
+    && python -m venv /opt/tf2onnx \
     && /opt/tf2onnx/bin/pip install tf2onnx==1.16.1 tensorflow-cpu==2.15.1
 RUN posemetry models fetch --dir /models --cache /tmp/model-cache --converter-python /opt/tf2onnx/bin/python \
     && rm -rf /tmp/model-cache /models/.cache \

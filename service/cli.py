@@ -17,6 +17,7 @@ import typer
 from rich.console import Console
 
 from service import __version__
+from service.pose.cli import models_app
 
 if TYPE_CHECKING:
     from fastapi import FastAPI
@@ -29,6 +30,7 @@ app = typer.Typer(
 )
 bench_app = typer.Typer(help="Benchmarks: accuracy against the paper's protocol, and speed.", no_args_is_help=True)
 app.add_typer(bench_app, name="bench")
+app.add_typer(models_app, name="models")
 db_app = typer.Typer(help="The SQL store: schema migrations.", no_args_is_help=True)
 app.add_typer(db_app, name="db")
 
@@ -168,6 +170,39 @@ def bench_ingest(
         code = subprocess.run([*command, "--seed", str(seed)], check=False).returncode
         if code:
             raise typer.Exit(code)
+
+
+@bench_app.command("pose")
+def bench_pose(
+    frames: Path | None = typer.Option(
+        None, help="Folder of frames (default: the Oxford Town Centre clip frames in ../shared/data)."
+    ),
+    models: str = typer.Option("thunder,lightning", help="Pose models to time, comma-separated."),
+    repeats: int = typer.Option(2, min=1, help="Passes over the frames per model and crop mode."),
+    threads: int | None = typer.Option(None, min=1, help="Inference threads (default: every core)."),
+) -> None:
+    """Pose throughput per frame: detector and pose split, Thunder and Lightning, batched crops vs a plain loop."""
+    from service.bench.pose import pose_lines, run_pose_benchmark
+    from service.settings import get_settings
+
+    settings = get_settings()
+    frames_dir = frames or Path(__file__).resolve().parents[1].parent / "shared/data/oxford_town_centre/frames"
+    chosen = [name.strip() for name in models.split(",") if name.strip()]
+    unknown = sorted(set(chosen) - {"thunder", "lightning"})
+    if unknown:
+        raise typer.BadParameter(f"unknown {', '.join(unknown)}; choose thunder, lightning", param_hint="--models")
+    log = Console(stderr=True)
+    result = run_pose_benchmark(
+        Path(settings.model_dir).expanduser(),
+        frames_dir,
+        chosen,  # type: ignore[arg-type]
+        repeats,
+        lambda message: log.print(f"[dim]{message}[/dim]", highlight=False),
+        threads=threads or settings.inference_threads,
+        detector_input_px=settings.detector_input_px,
+    )
+    typer.echo(f"posemetry pose benchmark ({os.cpu_count()} CPUs, Python {sys.version.split()[0]})")
+    typer.echo("\n".join(pose_lines(result)))
 
 
 @db_app.command("upgrade")

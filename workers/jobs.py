@@ -289,6 +289,7 @@ def calibrate_camera(camera_id: str, forced: bool = False) -> str:
 
 def _solve(settings: Settings, dispatcher: RedisDispatcher, camera_id: str, *, forced: bool) -> str:
     from service.geometry import CalibrationError, calibrate
+    from service.geometry.evidence import collapse_repeats, repeat_radius_px
 
     with read_session_factory(settings)() as session:
         camera = session.get(Camera, camera_id)
@@ -306,23 +307,26 @@ def _solve(settings: Settings, dispatcher: RedisDispatcher, camera_id: str, *, f
         height_m, equal_focal, known_focal_px = camera.person_height_m, camera.equal_focal, camera.known_focal_px
 
     started = time.perf_counter()
+    # Still people and static false detections (a mannequin) count once: see service.geometry.evidence.
+    keep = collapse_repeats(sample.tops_px, sample.bottoms_px, repeat_radius_px(image_size))
+    people_used = len(keep)
     try:
         solution = calibrate(
-            sample.tops_px,
-            sample.bottoms_px,
+            sample.tops_px[keep],
+            sample.bottoms_px[keep],
             image_size,
             height_m,
             equal_focal=equal_focal,
             focal_px=known_focal_px,
         )
         values = CalibrationValues.from_solution(
-            solution, people_used=len(sample), evidence_count=evidence_count, duration_s=time.perf_counter() - started
+            solution, people_used=people_used, evidence_count=evidence_count, duration_s=time.perf_counter() - started
         )
     except CalibrationError as exc:
         values = CalibrationValues.failure(
             clip_reason(str(exc)),
             person_height_m=height_m,
-            people_used=len(sample),
+            people_used=people_used,
             evidence_count=evidence_count,
             duration_s=time.perf_counter() - started,
         )
@@ -339,12 +343,13 @@ def _solve(settings: Settings, dispatcher: RedisDispatcher, camera_id: str, *, f
     except CameraNotFoundError:
         return GONE
     log.info(
-        "camera %s: version %d %s%s (%d people sampled, %d stored)",
+        "camera %s: version %d %s%s (%d people sampled, %d after collapsing repeats, %d stored)",
         camera_id,
         version,
         values.status,
         ", current" if make_current else "",
         len(sample),
+        people_used,
         evidence_count,
     )
     if waiting:

@@ -1,0 +1,106 @@
+"""RTMDet-nano person detector: letterboxed frame in, person boxes in image pixels out.
+
+The exported graph already contains NMS and returns `dets` (x1, y1, x2, y2, score in input-tensor pixels) and
+`labels` (always 0, person). Preprocessing follows mmdet's RTMDet convention exactly (BGR, letterbox in the
+top-left corner, pad 114, per-channel mean/std), because any deviation costs recall on the small, far people a
+surveillance camera mostly sees. The native size is 320, but 640 finds distant pedestrians the 320 input misses.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Final
+
+import cv2
+import numpy as np
+
+from .sessions import make_session
+
+DEFAULT_INPUT_PX: Final = 640
+DEFAULT_SCORE_THRESHOLD: Final = 0.3
+PAD_VALUE: Final = 114
+MEAN_BGR: Final = np.array([103.53, 116.28, 123.675], dtype=np.float32)
+STD_BGR: Final = np.array([57.375, 57.12, 58.395], dtype=np.float32)
+
+
+@dataclass(frozen=True)
+class Letterbox:
+    """How an image was placed in the square input: scaled by `ratio`, top-left aligned, padded to `size_px`."""
+
+    ratio: float
+    size_px: int
+
+    def to_image(self, xy_input: np.ndarray) -> np.ndarray:
+        """Input-tensor pixel coordinates (..., 2k) back to image pixels (top-left placement: a pure scale)."""
+        return np.asarray(xy_input, dtype=np.float64) / self.ratio
+
+    def to_input(self, xy_image: np.ndarray) -> np.ndarray:
+        """Image pixel coordinates to input-tensor pixels (the inverse of `to_image`)."""
+        return np.asarray(xy_image, dtype=np.float64) * self.ratio
+
+
+def letterbox(image_bgr: np.ndarray, size_px: int) -> tuple[np.ndarray, Letterbox]:
+    """(1, 3, S, S) float32 normalised input and the placement, for an (H, W, 3) uint8 BGR image.
+
+    The pad value 114 is normalised like the pixels (mmdet pads before normalising), and the normalisation runs on
+    the S x S result only, in float32, with the padding filled in one go: far cheaper than normalising the 1080p frame.
+    """
+    height, width = image_bgr.shape[:2]
+    ratio = size_px / max(height, width)
+    new_w, new_h = max(1, round(width * ratio)), max(1, round(height * ratio))
+    interpolation = cv2.INTER_AREA if ratio < 1 else cv2.INTER_LINEAR
+    resized = cv2.resize(image_bgr, (new_w, new_h), interpolation=interpolation)
+    padded = np.empty((size_px, size_px, 3), dtype=np.float32)
+    padded[:] = (PAD_VALUE - MEAN_BGR) / STD_BGR
+    padded[:new_h, :new_w] = (resized.astype(np.float32) - MEAN_BGR) / STD_BGR
+    tensor = np.ascontiguousarray(padded.transpose(2, 0, 1)[np.newaxis])
+    return tensor, Letterbox(ratio=ratio, size_px=size_px)
+
+
+@dataclass(frozen=True)
+class Detections:
+    """Person boxes of one image, most confident first."""
+
+    boxes_xyxy_px: np.ndarray
+    """(N, 4) float64 left, top, right, bottom in image pixels, clipped to the image."""
+    scores: np.ndarray
+    """(N,) float64 in [0, 1]."""
+
+
+class PersonDetector:
+    """RTMDet-nano on one frame at a time (the session is created once and reused)."""
+
+    def __init__(
+        self,
+        model_path: Path,
+        *,
+        input_px: int = DEFAULT_INPUT_PX,
+        score_threshold: float = DEFAULT_SCORE_THRESHOLD,
+        threads: int | None = None,
+    ) -> None:
+        if input_px < 32 or input_px % 32:
+            raise ValueError(f"detector input must be a positive multiple of 32 px (its stride), got {input_px}")
+        self.input_px = input_px
+        self.score_threshold = score_threshold
+        self.session = make_session(model_path, threads)
+        self._input_name = self.session.get_inputs()[0].name
+
+    def __call__(self, image_bgr: np.ndarray) -> Detections:
+        tensor, placement = letterbox(image_bgr, self.input_px)
+        dets = self.session.run(["dets"], {self._input_name: tensor})[0][0]
+        return decode(dets, placement, image_bgr.shape[:2], self.score_threshold)
+
+
+def decode(dets: np.ndarray, placement: Letterbox, image_hw: tuple[int, ...], score_threshold: float) -> Detections:
+    """Threshold, map back to image pixels, clip, drop boxes clipped to nothing, sort by score (stable)."""
+    dets = np.asarray(dets, dtype=np.float64).reshape(-1, 5)
+    dets = dets[dets[:, 4] >= score_threshold]
+    height, width = image_hw[:2]
+    boxes = placement.to_image(dets[:, :4])
+    boxes[:, [0, 2]] = boxes[:, [0, 2]].clip(0.0, width)
+    boxes[:, [1, 3]] = boxes[:, [1, 3]].clip(0.0, height)
+    keep = (boxes[:, 2] - boxes[:, 0] > 1.0) & (boxes[:, 3] - boxes[:, 1] > 1.0)
+    boxes, scores = boxes[keep], dets[keep, 4]
+    order = np.argsort(-scores, kind="stable")
+    return Detections(boxes_xyxy_px=boxes[order], scores=scores[order])
