@@ -318,6 +318,13 @@ def serve(
     port: int = typer.Option(DEFAULT_PORT, min=0, max=65535, help="TCP port."),
     workers: int = typer.Option(2, "--workers", min=1, help="Worker processes (each serves every queue)."),
     api_processes: int = typer.Option(1, "--api-processes", min=1, help="uvicorn processes serving the API."),
+    worker_nice: int = typer.Option(
+        10,
+        min=0,
+        max=19,
+        help="Scheduling niceness of the workers: on a busy machine the API and Redis get the CPU first, so "
+        "posting stays fast and the workers catch up in the gaps (0: equal shares).",
+    ),
     data_dir: Path | None = typer.Option(None, help="Directory for the database and Redis (POSEMETRY_DATA_DIR)."),
     log_level: str = typer.Option("info", help="uvicorn log level."),
 ) -> None:
@@ -348,7 +355,7 @@ def serve(
     # found: with Python's defaults that would kill this process before the workers and Redis are stopped.
     stop_signals: list[int] = []
     previous = {sig: signal.signal(sig, lambda signum, _frame: stop_signals.append(signum)) for sig in _STOP_SIGNALS}
-    pool = _WorkerPool(workers, console)
+    pool = _WorkerPool(workers, console, worker_nice)
     try:
         pool.start()
         console.print(f"{workers} workers started; API on http://{host}:{port}", highlight=False)
@@ -377,17 +384,21 @@ class _WorkerPool:
     once, gracefully (SIGTERM is RQ's warm shutdown; a second signal would make it abandon the job in hand).
     """
 
-    def __init__(self, count: int, console: Console) -> None:
+    def __init__(self, count: int, console: Console, niceness: int = 0) -> None:
         import threading
 
         self.count = count
+        self.niceness = niceness
         self.console = console
         self.children: list[subprocess.Popen[bytes]] = []
         self._stopping = threading.Event()
         self._watcher = threading.Thread(target=self._watch, name="worker-watcher", daemon=True)
 
     def _spawn(self) -> subprocess.Popen[bytes]:
-        return subprocess.Popen([sys.executable, "-m", "workers.main"], start_new_session=True)
+        niceness = self.niceness
+        return subprocess.Popen(
+            [sys.executable, "-m", "workers.main"], start_new_session=True, preexec_fn=lambda: os.nice(niceness)
+        )
 
     def start(self) -> None:
         self.children = [self._spawn() for _ in range(self.count)]

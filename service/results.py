@@ -11,7 +11,6 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from sqlalchemy.orm import Session
@@ -19,6 +18,7 @@ from sqlalchemy.orm import Session
 from service.geometry import Calibration, Uncertainty, measure
 from service.schemas import FrameResult, PairDistance, PersonPosition, finite_or_none
 from service.store import repository
+from service.store.db import EncodedJSON
 from service.store.models import CalibrationVersion, Camera, Frame, Observation, clip_reason
 from service.store.repository import FrameOutcome, PersonIn, ViolationIn
 
@@ -33,9 +33,9 @@ class FrameComputation:
     result: FrameResult
     violations: list[ViolationIn]
 
-    def result_json(self) -> dict[str, Any]:
-        """The result as stored in `frames.result` (plain JSON, no NaN)."""
-        return self.result.model_dump(mode="json")
+    def result_json(self) -> EncodedJSON:
+        """The result as stored in `frames.result`, encoded now (plain JSON: non-finite numbers are already None)."""
+        return EncodedJSON(self.result.model_dump_json())
 
 
 def calibration_from_version(version: CalibrationVersion, image_size_px: tuple[int, int]) -> Calibration:

@@ -53,7 +53,7 @@ SKIPPED = "skipped"
 
 # Frames measured per read/compute/write round: large enough to amortise the transactions, small enough that
 # the write lock is held for milliseconds.
-FRAMES_CHUNK = 200
+FRAMES_CHUNK = 50
 
 _engines: dict[tuple[int, str], tuple[Engine, sessionmaker[Session], sessionmaker[Session]]] = {}
 

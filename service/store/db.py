@@ -35,14 +35,26 @@ from sqlalchemy.pool import StaticPool
 POSTGRES_DRIVER = "postgresql+psycopg"
 # Execution option naming how a SQLite transaction begins (IMMEDIATE unless a read-only session says DEFERRED).
 SQLITE_BEGIN = "posemetry_sqlite_begin"
+# Kept-open SQLite connections per engine: about two per request thread of the API's thread pool.
+SQLITE_POOL_SIZE = 48
 # How often a writer retries SQLite's write lock while another process holds it (see _begin_immediate).
 WRITE_POLL_S = 0.0005
 # Connection-record flag: this connection's transaction holds the engine's in-process write lock.
 _HOLDS_WRITE_LOCK = "posemetry_holds_write_lock"
 
 
+class EncodedJSON(str):
+    """A JSON column value already encoded (e.g. by pydantic's `model_dump_json`), stored as it is.
+
+    Encoding a batch of frame results is the slowest part of writing them; done before the transaction, it no
+    longer holds SQLite's one write lock while the API waits.
+    """
+
+
 def _json_dumps(value: Any) -> str:
     """Strict JSON: PostgreSQL rejects NaN and Infinity, so they must fail on SQLite too rather than in production."""
+    if isinstance(value, EncodedJSON):
+        return str(value)
     return json.dumps(value, allow_nan=False, separators=(",", ":"))
 
 
@@ -84,6 +96,12 @@ def _sqlite_engine(url: URL, *, busy_timeout_s: float, echo: bool) -> Engine:
         # An in-memory database exists once per connection: share one connection, across threads too.
         connect_args["check_same_thread"] = False
         kwargs["poolclass"] = StaticPool
+    else:
+        # Every request thread holds up to two connections (a read and a write session). With SQLAlchemy's
+        # default pool of 5 the overflow connections are opened and closed per request, each paying the pragmas
+        # below: a third of the API's CPU under load. SQLite connections are cheap to keep open.
+        kwargs["pool_size"] = SQLITE_POOL_SIZE
+        kwargs["max_overflow"] = SQLITE_POOL_SIZE
     engine = create_engine(url, echo=echo, connect_args=connect_args, json_serializer=_json_dumps, **kwargs)
     busy_timeout_ms = int(busy_timeout_s * 1000)
 

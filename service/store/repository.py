@@ -194,7 +194,8 @@ class FrameOutcome:
     timestamp: datetime
     status: str
     calibration_version: int | None
-    result: dict[str, Any] | None = None
+    result: Any = None
+    """The result as a JSON-ready dict, or already encoded (`service.store.db.EncodedJSON`)."""
     violations: Sequence[ViolationIn] = ()
     error: str | None = None
 
