@@ -8,7 +8,6 @@ Evidence comes from the geometry's simulator (surveillance preset: realistic noi
 
 from __future__ import annotations
 
-import shutil
 import uuid
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -25,10 +24,16 @@ from service.geometry.simulate import Scene, SceneConfig, draw_scene
 from service.keypoints import person_from_centres
 from service.queue import QUEUES, EmbeddedRedis, RedisDispatcher, connect
 from service.settings import get_settings
-from service.store.migrate import upgrade
 from service.store.repository import add_keypoint_frame, upsert_camera
 from tests.shared import model_dir_path
+from tests.store import conftest as store_fixtures
 from workers import jobs
+
+# The store's database fixtures (SQLite, and a throwaway PostgreSQL cluster), re-exported for pytest.
+migrated_url = store_fixtures.migrated_url
+postgres_cluster = store_fixtures.postgres_cluster
+postgres_template = store_fixtures.postgres_template
+sqlite_template = store_fixtures.sqlite_template
 
 IMAGE_SIZE = (1920, 1080)
 PEOPLE_PER_FRAME = 10
@@ -51,23 +56,20 @@ def connection(redis_server: EmbeddedRedis) -> Iterator[redis.Redis]:
     conn.close()
 
 
-@pytest.fixture(scope="session")
-def sqlite_template(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    path = tmp_path_factory.mktemp("workers-template") / "template.sqlite3"
-    upgrade(f"sqlite:///{path}")
-    return path
+@pytest.fixture
+def backend() -> str:
+    """Worker tests run on SQLite; modules that must also pass on PostgreSQL override this with params."""
+    return "sqlite"
 
 
 @pytest.fixture
 def environment(
-    tmp_path: Path, sqlite_template: Path, redis_server: EmbeddedRedis, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, migrated_url: str, redis_server: EmbeddedRedis, monkeypatch: pytest.MonkeyPatch
 ) -> Iterator[dict[str, str]]:
     """POSEMETRY_* for this test's database and the session's Redis; settings re-read from it."""
-    database = tmp_path / "posemetry.sqlite3"
-    shutil.copyfile(sqlite_template, database)
     env = {
         "POSEMETRY_DATA_DIR": str(tmp_path),
-        "POSEMETRY_DATABASE_URL": f"sqlite:///{database}",
+        "POSEMETRY_DATABASE_URL": migrated_url,
         "POSEMETRY_REDIS_URL": redis_server.url,
         "POSEMETRY_CALIBRATION_MIN_PEOPLE": "30",
         "POSEMETRY_MODEL_DIR": str(model_dir_path()),

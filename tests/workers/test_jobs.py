@@ -31,6 +31,12 @@ from workers import jobs
 from workers.main import requeue_pending, run_worker
 
 
+@pytest.fixture(params=["sqlite", "postgresql"])
+def backend(request: pytest.FixtureRequest) -> str:
+    """The jobs' transactions, gates and bulk writes behave alike on both databases."""
+    return str(request.param)
+
+
 def _versions(sessions: sessionmaker[Session], camera_id: str) -> list[CalibrationVersion]:
     with sessions() as session:
         return list(reversed(calibration_history(session, camera_id)))
