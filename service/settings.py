@@ -139,3 +139,13 @@ class Settings(BaseSettings):
 def get_settings() -> Settings:
     """The process-wide settings, read from the environment once (tests call `get_settings.cache_clear()`)."""
     return Settings()
+
+
+def settings_table() -> str:
+    """The README's configuration table (Markdown), from the fields' defaults and descriptions."""
+    lines = ["| variable | default | meaning |", "| --- | --- | --- |"]
+    for name, info in Settings.model_fields.items():
+        default = info.default
+        shown = "(unset)" if default in (None, "") else str(default)
+        lines.append(f"| `{ENV_PREFIX}{name.upper()}` | `{shown}` | {info.description} |")
+    return "\n".join(lines)

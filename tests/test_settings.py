@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 from pydantic import ValidationError
 
-from service.settings import Settings, get_settings
+from service.settings import Settings, get_settings, settings_table
 
 
 def test_defaults_put_a_sqlite_file_in_the_data_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -52,3 +52,11 @@ def test_get_settings_is_read_once(monkeypatch: pytest.MonkeyPatch) -> None:
         assert get_settings() is first and first.max_body_bytes == 4096
     finally:
         get_settings.cache_clear()
+
+
+def test_readme_configuration_table_is_current() -> None:
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    assert settings_table() in readme, (
+        "README's configuration table is stale: replace it with the output of "
+        '`.venv/bin/python -c "from service.settings import settings_table; print(settings_table())"`'
+    )
