@@ -6,16 +6,17 @@ import uuid
 from datetime import UTC, datetime
 from pathlib import Path
 
+import numpy as np
 import pytest
 import redis
 from rq import Queue
 from sqlalchemy.orm import Session, sessionmaker
 
 from service.images import read_header
-from service.queue import FRAMES_QUEUE, POSE_QUEUE, RedisDispatcher
+from service.queue import CALIBRATION_QUEUE, FRAMES_QUEUE, POSE_QUEUE, RedisDispatcher
 from service.settings import get_settings
 from service.store import Frame, Observation
-from service.store.repository import add_image_frame, frame_image, get_camera, upsert_camera
+from service.store.repository import add_image_frame, current_calibration, frame_image, get_camera, upsert_camera
 from tests.shared import TOWN_CENTRE, model_dir_path, require_dir
 from tests.workers.conftest import run_jobs
 from workers import jobs
@@ -131,3 +132,30 @@ def test_worker_start_requeues_images_still_detecting(
     assert requeue_pending(get_settings(), dispatcher).images == 0
     run_jobs(connection)
     assert _status(sessions, frame_id) == "pending"  # people found; waiting for a calibration
+
+
+def test_town_centre_calibrates_from_its_own_pedestrians(
+    sessions: sessionmaker[Session], dispatcher: RedisDispatcher, connection: redis.Redis, town_jpeg: bytes
+) -> None:
+    """The real camera, end to end in the workers: 22 street frames, pose, evidence, a solve, the published truth.
+
+    Oxford Town Centre's published calibration has fx = fy = 2696 px; its ground plane comes from the published
+    rotation and translation (tests/pose/towncentre.py). Measured here: fx 2735 px (+1.4 %, 1-sigma 68 px) and the
+    normal 1.8 degrees off, from 150 people; the issue's bounds (10 %, 3 degrees) are asserted.
+    """
+    from tests.pose.towncentre import load_calibration
+
+    truth = load_calibration(TOWN_CENTRE / "TownCentre-calibration-ci.txt")
+    for path in sorted((TOWN_CENTRE / "frames").glob("clip_*.jpg")):
+        dispatcher.image_stored(CAMERA, store_image(sessions, path.read_bytes()))
+    run_jobs(connection)
+    dispatcher.request(CALIBRATION_QUEUE, CAMERA, forced=True)  # one last solve on all the evidence
+    run_jobs(connection)
+    with sessions() as session:
+        calibration = current_calibration(session, CAMERA)
+        statuses = {status for (status,) in session.query(Frame.status)}
+    assert calibration is not None and calibration.people_used >= 100
+    assert abs(calibration.fx_px / truth.fx - 1) < 0.10
+    normal = np.array([calibration.normal_x, calibration.normal_y, calibration.normal_z])
+    assert np.degrees(np.arccos(np.clip(normal @ truth.ground_normal, -1, 1))) < 3.0
+    assert statuses == {"done"}  # every frame measured with it
