@@ -5,7 +5,7 @@ from __future__ import annotations
 import uuid
 
 import cv2
-import httpx
+import httpx2 as httpx
 import numpy as np
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
