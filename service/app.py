@@ -15,10 +15,12 @@ from sqlalchemy import Engine
 
 from service import __version__
 from service.dispatch import Dispatcher, NullDispatcher
+from service.json_body import register_body_schemas
 from service.problems import PROBLEM_MEDIA_TYPE, BodyGuard, install_handlers
 from service.routers import calibration, cameras, distances, frames, health, pictures, violations
 from service.settings import Settings, get_settings
 from service.store import make_engine, make_session_factory
+from service.store.frame_writer import FrameWriter
 
 log = logging.getLogger(__name__)
 
@@ -73,14 +75,19 @@ def create_app(
         description=DESCRIPTION,
         lifespan=lifespan,
         responses=PROBLEM_RESPONSES,
+        # FastAPI's built-in OpenTelemetry hooks cost a provider lookup per request even when nothing is
+        # configured; the service reports its own metrics.
+        telemetry={"tracing": False, "metrics": False, "logs": False},
     )
     app.state.settings = settings
     app.state.engine = engine
     app.state.session_factory = make_session_factory(engine)
     app.state.read_session_factory = make_session_factory(engine, read_only=True)
+    app.state.frame_writer = FrameWriter(app.state.session_factory)
     app.state.dispatcher = dispatcher
     install_handlers(app)
     app.add_middleware(BodyGuard, max_body_bytes=settings.max_body_bytes, uploads=(frames.upload_route(settings),))
     for module in (cameras, frames, pictures, calibration, distances, violations, health):
         app.include_router(module.router)
+    register_body_schemas(app, frames.JSON_BODIES)
     return app

@@ -88,7 +88,7 @@ def person_from_keypoints(
     return PersonIn(
         shoulder_px=shoulder,
         ankle_px=ankle,
-        keypoints=[[float(v) for v in k] for k in keypoints],
+        keypoints=keypoints,
         unusable_reason=evidence_problem(shoulder, ankle, image_size_px),
     )
 

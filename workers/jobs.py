@@ -34,7 +34,7 @@ from service.store.repository import (
     calibration_due,
     current_calibration,
     frame_image,
-    frames_observations,
+    frames_points,
     pending_frames,
     record_detection_failure,
     record_detections,
@@ -222,7 +222,7 @@ def _measure_pending(settings: Settings, dispatcher: RedisDispatcher, camera_id:
                 outcome = PENDING
                 break
             frames = pending_frames(session, camera_id, limit=FRAMES_CHUNK)
-            people = frames_observations(session, [frame.id for frame in frames])
+            people = frames_points(session, [frame.id for frame in frames])
         outcomes = [frame_outcome(frame, people.get(frame.id, []), camera, calibration) for frame in frames]
         if outcomes:
             with _transaction(settings) as session:

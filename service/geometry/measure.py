@@ -19,7 +19,12 @@ from .calibration import Calibration
 from .frame import FloatArray
 from .priors import DEFAULT_HEIGHT_STD_M
 from .reconstruct import intersect_plane, pairwise_distances
+from .refine import tangent_basis
 from .uncertainty import canonical_camera
+
+# Finite-difference steps of the keypoint-noise and height-spread terms.
+_KEYPOINT_STEP_PX = 1e-4
+_HEIGHT_STEP_M = 1e-4
 
 
 @dataclass(frozen=True)
@@ -36,21 +41,70 @@ class Measurement:
         return np.all(np.isfinite(self.points_bottom), axis=1)
 
 
-def _positions(
-    c: FloatArray,
-    cal: Calibration,
-    tops_px: FloatArray,
-    bottoms_px: FloatArray,
-    from_ankles: FloatArray,
-    height_m: float,
-) -> FloatArray:
-    fx, fy, normal, rho = canonical_camera(c, cal.normal)
-    chosen = np.where(from_ankles[:, None], bottoms_px, tops_px)
-    chosen = undistort_px(cal, chosen)
-    ray = np.stack(((chosen[:, 0] - cal.cx) / fx, (chosen[:, 1] - cal.cy) / fy, np.ones(len(chosen))), -1)
-    offset = np.where(from_ankles, rho, rho - height_m)
-    x = intersect_plane(ray, normal, offset)
-    return x - np.where(from_ankles, 0.0, height_m)[:, None] * normal
+@dataclass(frozen=True)
+class _Variants:
+    """K versions of the camera and of the people, evaluated together: the measurement and its finite
+    differences (each perturbs one parameter) cost one vectorised pass instead of K small ones."""
+
+    fx_px: FloatArray  # (K,)
+    fy_px: FloatArray  # (K,)
+    normal: FloatArray  # (K, 3)
+    rho_m: FloatArray  # (K,)
+    height_m: FloatArray  # (K,)
+    tops_px: FloatArray  # (K, N, 2)
+    bottoms_px: FloatArray  # (K, N, 2)
+
+
+def _positions(cal: Calibration, v: _Variants, from_ankles: FloatArray) -> FloatArray:
+    """(K, N, 3) camera-frame ground points: the ankle ray meets the plane; without ankles, the shoulder ray
+    meets the plane raised by the height prior and the point is lowered back onto the ground."""
+    chosen = undistort_px(cal, np.where(from_ankles[:, None], v.bottoms_px, v.tops_px))
+    ray = np.stack(
+        (
+            (chosen[..., 0] - cal.cx) / v.fx_px[:, None],
+            (chosen[..., 1] - cal.cy) / v.fy_px[:, None],
+            np.ones(chosen.shape[:-1]),
+        ),
+        -1,
+    )
+    lift_m = np.where(from_ankles, 0.0, v.height_m[:, None])  # (K, N)
+    normal = v.normal[:, None, :]
+    x = intersect_plane(ray, normal, v.rho_m[:, None] - lift_m)
+    return x - lift_m[..., None] * normal
+
+
+def _camera_steps(cal: Calibration) -> FloatArray:
+    """Finite-difference steps in the canonical parameters (fx_px, fy_px, t1_rad, t2_rad, rho_m)."""
+    return np.array([1e-6 * cal.fx, 1e-6 * cal.fy, 1e-7, 1e-7, 1e-7 * cal.rho])
+
+
+def _variants(cal: Calibration, tops_px: FloatArray, bottoms_px: FloatArray, with_camera: bool) -> _Variants:
+    """The base camera, then (if with_camera) one step in each canonical parameter, then the people's keypoints
+    moved along x and along y, then the height prior raised."""
+    c0 = np.array([cal.fx, cal.fy, 0.0, 0.0, cal.rho])
+    basis = tangent_basis(cal.normal)
+    base = canonical_camera(c0, cal.normal, basis)
+    cameras = [base]
+    if with_camera:
+        steps = _camera_steps(cal)
+        for k in range(5):
+            c = c0.copy()
+            c[k] += steps[k]
+            cameras.append(canonical_camera(c, cal.normal, basis))
+    cameras += [base, base, base]
+    moved_x, moved_y = np.array([_KEYPOINT_STEP_PX, 0.0]), np.array([0.0, _KEYPOINT_STEP_PX])
+    shifts = [np.zeros(2)] * (len(cameras) - 3) + [moved_x, moved_y, np.zeros(2)]
+    heights = np.full(len(cameras), cal.height_m)
+    heights[-1] += _HEIGHT_STEP_M
+    return _Variants(
+        fx_px=np.array([camera[0] for camera in cameras]),
+        fy_px=np.array([camera[1] for camera in cameras]),
+        normal=np.array([camera[2] for camera in cameras]),
+        rho_m=np.array([camera[3] for camera in cameras]),
+        height_m=heights,
+        tops_px=tops_px[None] + np.array(shifts)[:, None, :],
+        bottoms_px=bottoms_px[None] + np.array(shifts)[:, None, :],
+    )
 
 
 def undistort_px(cal: Calibration, points_px: FloatArray) -> FloatArray:
@@ -82,8 +136,9 @@ def measure(
     from_ankles = np.all(np.isfinite(bottoms_px), axis=1)
     unc = cal.uncertainty
     sigma_px = (unc.noise_px if unc is not None else 0.0) if noise_px is None else noise_px
-    c0 = np.array([cal.fx, cal.fy, 0.0, 0.0, cal.rho])
-    x0 = _positions(c0, cal, tops_px, bottoms_px, from_ankles, cal.height_m)
+    with_camera = unc is not None
+    xs = _positions(cal, _variants(cal, tops_px, bottoms_px, with_camera), from_ankles)
+    x0 = xs[0]
     dist = pairwise_distances(x0)
     n = len(x0)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -92,25 +147,14 @@ def measure(
 
     if unc is not None:
         # Calibration: each person's sensitivity to the 5 canonical parameters.
-        steps = np.array([1e-6 * cal.fx, 1e-6 * cal.fy, 1e-7, 1e-7, 1e-7 * cal.rho])
-        dx_dc = np.empty((n, 3, 5))
-        for k in range(5):
-            c = c0.copy()
-            c[k] += steps[k]
-            dx_dc[:, :, k] = (_positions(c, cal, tops_px, bottoms_px, from_ankles, cal.height_m) - x0) / steps[k]
+        dx_dc = np.moveaxis((xs[1:6] - x0) / _camera_steps(cal)[:, None, None], 0, -1)  # (N, 3, 5)
         g = np.einsum("ijx,ixk->ijk", unit, dx_dc) - np.einsum("ijx,jxk->ijk", unit, dx_dc)
         var += np.einsum("ijk,kl,ijl->ij", g, unc.covariance, g)
 
     # Keypoint noise on the point each person is placed from, and height spread for shoulder placement.
-    per_person = np.zeros((n, 3, 3))
-    for axis in (0, 1):
-        step = 1e-4
-        t, b = tops_px.copy(), bottoms_px.copy()
-        t[:, axis] += step
-        b[:, axis] += step
-        dx = (_positions(c0, cal, t, b, from_ankles, cal.height_m) - x0) / step
-        per_person += sigma_px**2 * np.einsum("ni,nj->nij", dx, dx)
-    dx_dh = (_positions(c0, cal, tops_px, bottoms_px, from_ankles, cal.height_m + 1e-4) - x0) / 1e-4
+    dx_dpx = (xs[-3:-1] - x0) / _KEYPOINT_STEP_PX  # (2, N, 3): along x, along y
+    per_person = sigma_px**2 * np.einsum("ani,anj->nij", dx_dpx, dx_dpx)
+    dx_dh = (xs[-1] - x0) / _HEIGHT_STEP_M
     per_person += (height_std_m**2 * np.where(from_ankles, 0.0, 1.0))[:, None, None] * np.einsum(
         "ni,nj->nij", dx_dh, dx_dh
     )

@@ -26,6 +26,7 @@ from scipy.optimize import least_squares
 
 from .frame import FloatArray
 from .linear import LinearSolution
+from .vec import cross
 
 RESIDUALS_PER_PERSON = 5
 PARAMS_PER_PERSON = 3
@@ -34,9 +35,9 @@ PARAMS_PER_PERSON = 3
 def tangent_basis(normal: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Two unit vectors orthogonal to normal and to each other."""
     helper = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    t1 = np.cross(normal, helper)
+    t1 = cross(normal, helper)
     t1 /= np.linalg.norm(t1)
-    return t1, np.cross(normal, t1)
+    return t1, cross(normal, t1)
 
 
 @dataclass

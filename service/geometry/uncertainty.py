@@ -21,9 +21,14 @@ from .refine import CameraModel, tangent_basis
 CANONICAL_PARAMETERS = ("fx_px", "fy_px", "normal_t1_rad", "normal_t2_rad", "rho_m")
 
 
-def canonical_camera(c: FloatArray, normal: FloatArray) -> tuple[float, float, FloatArray, float]:
-    """(fx_px, fy_px, normal, rho_m) at canonical parameters c around the reported normal."""
-    e1, e2 = tangent_basis(normal)
+def canonical_camera(
+    c: FloatArray, normal: FloatArray, basis: tuple[FloatArray, FloatArray] | None = None
+) -> tuple[float, float, FloatArray, float]:
+    """(fx_px, fy_px, normal, rho_m) at canonical parameters c around the reported normal.
+
+    `basis` is tangent_basis(normal), for callers that evaluate many c around one normal.
+    """
+    e1, e2 = basis if basis is not None else tangent_basis(normal)
     n = normal + c[2] * e1 + c[3] * e2
     return float(c[0]), float(c[1]), n / np.linalg.norm(n), float(c[4])
 

@@ -6,12 +6,14 @@ import re
 import uuid
 from typing import Annotated
 
-from fastapi import APIRouter, Path, Query, Request, Response, status
+from fastapi import APIRouter, Depends, Path, Query, Request, Response, status
 from pydantic import AwareDatetime
 from starlette.concurrency import run_in_threadpool
+from starlette.datastructures import State
 
 from service.dispatch import UNAVAILABLE_ERRORS, Dispatcher
 from service.images import ImageError, ImageTooLargeError, decode
+from service.json_body import json_body, openapi_body
 from service.problems import ProblemError, UploadRoute
 from service.schemas import (
     CLIENT_FRAME_ID_PATTERN,
@@ -23,6 +25,7 @@ from service.schemas import (
 )
 from service.settings import Settings
 from service.store import repository
+from service.store.frame_writer import FrameWriter
 from service.store.models import Frame, Observation
 from service.uploads import OPENAPI_REQUEST_BODY, UPLOAD_TYPES, Upload, read_upload
 
@@ -30,7 +33,6 @@ from .common import (
     CameraIdPath,
     DispatcherDep,
     ReadSessionDep,
-    SessionDep,
     SettingsDep,
     camera_not_found,
     camera_url,
@@ -40,6 +42,8 @@ from .common import (
 )
 
 router = APIRouter(prefix="/v1/cameras", tags=["frames"])
+# Bodies read by json_body rather than declared in a signature; the app adds their schemas to its OpenAPI.
+JSON_BODIES = (KeypointFrame,)
 
 
 def frame_url(camera_id: str, frame_id: uuid.UUID) -> str:
@@ -51,15 +55,13 @@ def frame_url(camera_id: str, frame_id: uuid.UUID) -> str:
     status_code=status.HTTP_202_ACCEPTED,
     response_model=FrameAccepted,
     responses={200: {"description": "A retry of a frame already stored (same client frame_id)"}},
+    openapi_extra=openapi_body(KeypointFrame),
 )
-def post_keypoints(
+async def post_keypoints(
     camera_id: CameraIdPath,
-    body: KeypointFrame,
+    body: Annotated[KeypointFrame, Depends(json_body(KeypointFrame))],
+    request: Request,
     response: Response,
-    read_session: ReadSessionDep,
-    session: SessionDep,
-    settings: SettingsDep,
-    dispatcher: DispatcherDep,
 ) -> FrameAccepted:
     """Store one frame's people, then nudge the workers: 202 with the frame's URL (200 for a retry).
 
@@ -70,27 +72,29 @@ def post_keypoints(
     still pending it is dispatched again, which is how a client recovers from an earlier 503. When the queue
     is unreachable the answer is 503, but the frame is already committed and workers pick it up on start.
     """
-    # Checks and conversion happen before the writing transaction, which on SQLite holds the one write lock.
-    camera = require_camera(read_session, camera_id)
+    # The body is parsed on the event loop (pydantic-core, no thread hop); the database and the queue get one
+    # trip to the thread pool between them.
+    return await run_in_threadpool(_store_keypoints, request.app.state, camera_id, body, response)
+
+
+def _store_keypoints(state: State, camera_id: str, body: KeypointFrame, response: Response) -> FrameAccepted:
+    settings: Settings = state.settings
+    with state.read_session_factory() as read_session:
+        camera = require_camera(read_session, camera_id)
+    # Checks and conversion happen before the writing transaction, which on SQLite holds the one write lock. The
+    # camera stays readable: closing a session detaches its objects without expiring them.
     people = people_for_camera(body.people, camera, settings)
-    read_session.rollback()
+    writer: FrameWriter = state.frame_writer
     try:
-        frame, created = repository.add_keypoint_frame(
-            session,
-            camera_id,
-            timestamp=body.timestamp,
-            people=people,
-            client_frame_id=body.frame_id,
-            camera=camera,
+        frame, created = writer.add(
+            repository.NewKeypointFrame(camera, body.timestamp, people, client_frame_id=body.frame_id)
         )
     except repository.CameraNotFoundError:
         raise camera_not_found(camera_id) from None  # deleted since it was read
-    session.commit()
-    session.close()  # give the connection back before talking to the queue
     url = frame_url(camera_id, frame.id)
     if created or frame.status == "pending":
         try:
-            dispatcher.frame_stored(camera_id, frame.id)
+            state.dispatcher.frame_stored(camera_id, frame.id)
         except UNAVAILABLE_ERRORS as exc:
             raise queue_unavailable(
                 "the frame is stored and will be processed when the queue is back.",

@@ -19,7 +19,7 @@ from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
-from sqlalchemy import Select, Table, bindparam, delete, func, insert, select, true, union_all, update
+from sqlalchemy import Row, Select, Table, bindparam, delete, func, insert, select, true, union_all, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, make_transient_to_detached
 
@@ -49,6 +49,7 @@ if TYPE_CHECKING:
 # Bulk inserts go through the Core tables: ~15% less overhead per frame than ORM bulk inserts.
 _OBSERVATIONS = cast(Table, Observation.__table__)
 _FRAMES = cast(Table, Frame.__table__)
+_CAMERAS = cast(Table, Camera.__table__)
 _FRAME_COLUMNS = (
     "id",
     "camera_id",
@@ -94,6 +95,17 @@ class PersonIn:
     box_px: tuple[float, float, float, float] | None = None
     """Detector box (left, top, right, bottom) of a person found in an image."""
     detection_score: float | None = None
+
+
+@dataclass(frozen=True)
+class NewKeypointFrame:
+    """A posted keypoint frame on its way into the store (see add_keypoint_frames)."""
+
+    camera: Camera
+    """The frame's camera as the caller read it; only its id and image size are used."""
+    timestamp: datetime
+    people: Sequence[PersonIn]
+    client_frame_id: str | None = None
 
 
 @dataclass(frozen=True)
@@ -391,13 +403,16 @@ def _insert_observations(session: Session, camera_id: str, rows: Sequence[dict[s
     if not rows:
         return
     session.execute(insert(_OBSERVATIONS), rows)
-    usable = sum(1 for row in rows if row["usable"])
+    _count_evidence(session, camera_id, sum(1 for row in rows if row["usable"]))
+
+
+def _count_evidence(session: Session, camera_id: str, usable: int) -> None:
+    """Add newly stored usable people to the camera's counter (a Core update: the ORM's costs twice as much)."""
     if usable:
         session.execute(
-            update(Camera)
-            .where(Camera.id == camera_id)
-            .values(usable_evidence_count=Camera.usable_evidence_count + usable)
-            .execution_options(synchronize_session=False)
+            update(_CAMERAS)
+            .where(_CAMERAS.c.id == camera_id)
+            .values(usable_evidence_count=_CAMERAS.c.usable_evidence_count + usable)
         )
 
 
@@ -423,8 +438,7 @@ def add_keypoint_frame(
     the caller has already read it (the API, in a read-only session), saves reading it again inside the write
     transaction; only its image size is used, and a camera deleted meanwhile is still refused (foreign key).
     """
-    if timestamp.tzinfo is None or timestamp.utcoffset() is None:
-        raise ValueError(f"timestamp {timestamp!r} has no timezone: the store keeps UTC instants")
+    _check_timestamp(timestamp)
     if camera is None:
         camera = _require_camera(session, camera_id)
     if client_frame_id is not None:
@@ -432,16 +446,7 @@ def add_keypoint_frame(
         if existing is not None:
             return existing, False
     # The rows go in as Core inserts, which cost a fraction of an ORM flush.
-    frame = Frame(
-        id=uuid.uuid4(),
-        camera_id=camera_id,
-        client_frame_id=client_frame_id,
-        timestamp=timestamp,
-        received_at=received_at or utc_now(),
-        source="keypoints",
-        status="pending",
-        people=len(people),
-    )
+    frame = _new_frame(camera_id, timestamp, client_frame_id, received_at or utc_now(), people=len(people))
     rows = _observation_rows(camera, frame.id, people)
     try:
         # A savepoint only where a unique-id race is possible: it costs two statements on the hot path.
@@ -459,10 +464,101 @@ def add_keypoint_frame(
         raise
     if camera in session:
         session.expire(camera, ["usable_evidence_count"])
-    # Attach the inserted row's object to the session as if it had been loaded, without a SELECT or an INSERT.
+    _attach_inserted(session, frame)
+    return frame, True
+
+
+def add_keypoint_frames(
+    session: Session, frames: Sequence[NewKeypointFrame], *, received_at: datetime | None = None
+) -> list[tuple[Frame, bool]]:
+    """Store several frames and their people with one statement per table; returns (frame, created) per frame.
+
+    The API's group commit (service.store.frame_writer) writes the frames that arrive while the previous batch
+    is being written in one transaction, which costs a fraction of one transaction per frame. Retries are
+    answered as in add_keypoint_frame: a client frame id already stored, or repeated within the batch, returns
+    the first frame with created=False. Unlike add_keypoint_frame there is no SAVEPOINT per frame: a frame whose
+    camera was deleted meanwhile, or whose client id another process stored since the check, makes the whole
+    batch raise IntegrityError, and the caller stores those frames one at a time instead.
+    """
+    received_at = received_at or utc_now()
+    for item in frames:
+        _check_timestamp(item.timestamp)
+    known = _frames_by_client_ids(session, frames)
+    results: list[tuple[Frame, bool]] = []
+    frame_rows: list[dict[str, Any]] = []
+    observation_rows: list[dict[str, Any]] = []
+    usable: dict[str, int] = {}
+    for item in frames:
+        camera_id = item.camera.id
+        key = (camera_id, item.client_frame_id)
+        if item.client_frame_id is not None and key in known:
+            results.append((known[key], False))
+            continue
+        frame = _new_frame(camera_id, item.timestamp, item.client_frame_id, received_at, people=len(item.people))
+        if item.client_frame_id is not None:
+            known[key] = frame
+        rows = _observation_rows(item.camera, frame.id, item.people)
+        frame_rows.append(_frame_row(frame))
+        observation_rows += rows
+        usable[camera_id] = usable.get(camera_id, 0) + sum(1 for row in rows if row["usable"])
+        results.append((frame, True))
+    if frame_rows:
+        session.execute(insert(_FRAMES), frame_rows)
+    if observation_rows:
+        session.execute(insert(_OBSERVATIONS), observation_rows)
+    for camera_id, count in usable.items():
+        _count_evidence(session, camera_id, count)
+    for frame, created in results:
+        if created:
+            _attach_inserted(session, frame)
+    return results
+
+
+def _frames_by_client_ids(session: Session, frames: Sequence[NewKeypointFrame]) -> dict[tuple[str, str | None], Frame]:
+    """Stored frames among the batch's client frame ids, by (camera id, client frame id): one query per camera."""
+    wanted: dict[str, set[str]] = {}
+    for item in frames:
+        if item.client_frame_id is not None:
+            wanted.setdefault(item.camera.id, set()).add(item.client_frame_id)
+    found: dict[tuple[str, str | None], Frame] = {}
+    for camera_id, client_ids in wanted.items():
+        stmt = select(Frame).where(Frame.camera_id == camera_id, Frame.client_frame_id.in_(sorted(client_ids)))
+        for frame in session.execute(stmt).scalars():
+            found[(camera_id, frame.client_frame_id)] = frame
+    return found
+
+
+def _check_timestamp(timestamp: datetime) -> None:
+    if timestamp.tzinfo is None or timestamp.utcoffset() is None:
+        raise ValueError(f"timestamp {timestamp!r} has no timezone: the store keeps UTC instants")
+
+
+def _new_frame(
+    camera_id: str,
+    timestamp: datetime,
+    client_frame_id: str | None,
+    received_at: datetime,
+    *,
+    source: str = "keypoints",
+    people: int = 0,
+) -> Frame:
+    """A frame not yet inserted: keypoint frames wait to be measured, image frames for their pose job first."""
+    return Frame(
+        id=uuid.uuid4(),
+        camera_id=camera_id,
+        client_frame_id=client_frame_id,
+        timestamp=timestamp,
+        received_at=received_at,
+        source=source,
+        status="pending" if source == "keypoints" else "detecting",
+        people=people,
+    )
+
+
+def _attach_inserted(session: Session, frame: Frame) -> None:
+    """Attach an object whose row a Core insert wrote to the session as if loaded: no SELECT, no second INSERT."""
     make_transient_to_detached(frame)
     session.add(frame)
-    return frame, True
 
 
 def add_image_frame(
@@ -482,22 +578,12 @@ def add_image_frame(
     The picture goes to `frame_images`, the pose job's input; `record_detections` deletes it afterwards unless
     the camera keeps images. A retry with the same client frame id stores nothing.
     """
-    if timestamp.tzinfo is None or timestamp.utcoffset() is None:
-        raise ValueError(f"timestamp {timestamp!r} has no timezone: the store keeps UTC instants")
+    _check_timestamp(timestamp)
     if client_frame_id is not None:
         existing = _frame_by_client_id(session, camera.id, client_frame_id)
         if existing is not None:
             return existing, False
-    frame = Frame(
-        id=uuid.uuid4(),
-        camera_id=camera.id,
-        client_frame_id=client_frame_id,
-        timestamp=timestamp,
-        received_at=received_at or utc_now(),
-        source="image",
-        status="detecting",
-        people=0,
-    )
+    frame = _new_frame(camera.id, timestamp, client_frame_id, received_at or utc_now(), source="image")
     image = {
         "frame_id": frame.id,
         "content_type": content_type,
@@ -517,8 +603,7 @@ def add_image_frame(
         if session.get(Camera, camera.id) is None:
             raise CameraNotFoundError(camera.id) from None
         raise
-    make_transient_to_detached(frame)
-    session.add(frame)
+    _attach_inserted(session, frame)
     return frame, True
 
 
@@ -608,6 +693,32 @@ def frames_observations(session: Session, frame_ids: Sequence[uuid.UUID]) -> dic
     )
     for observation in session.scalars(stmt):
         people.setdefault(observation.frame_id, []).append(observation)
+    return people
+
+
+def frames_points(session: Session, frame_ids: Sequence[uuid.UUID]) -> dict[uuid.UUID, list[Row[Any]]]:
+    """Several frames' people as light rows of their centres (`shoulder_x_px` ... `ankle_y_px`), posted order.
+
+    What measuring needs, and all it needs: building full ORM objects for a worker's batch (a thousand people)
+    cost more than measuring them.
+    """
+    people: dict[uuid.UUID, list[Row[Any]]] = {}
+    if not frame_ids:
+        return people
+    columns = _OBSERVATIONS.c
+    stmt = (
+        select(
+            columns.frame_id,
+            columns.shoulder_x_px,
+            columns.shoulder_y_px,
+            columns.ankle_x_px,
+            columns.ankle_y_px,
+        )
+        .where(columns.frame_id.in_(frame_ids))
+        .order_by(columns.frame_id, columns.person_index)
+    )
+    for row in session.execute(stmt):
+        people.setdefault(row.frame_id, []).append(row)
     return people
 
 
