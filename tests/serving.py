@@ -1,0 +1,102 @@
+"""`posemetry serve` as a subprocess, driven over HTTP exactly as a user's camera system or dashboard would."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+REPO = Path(__file__).resolve().parents[1]
+DEADLINE_S = 60.0
+STOP_TIMEOUT_S = 30.0
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def clean_environment(**settings: str) -> dict[str, str]:
+    """This process's environment without any POSEMETRY_* setting, plus `settings` (names without the prefix)."""
+    env = {key: value for key, value in os.environ.items() if not key.startswith("POSEMETRY_")}
+    env.update({f"POSEMETRY_{name.upper()}": value for name, value in settings.items()})
+    return env
+
+
+@dataclass
+class Served:
+    """A running `posemetry serve` and an HTTP client for it."""
+
+    process: subprocess.Popen[bytes]
+    base: str
+
+    def http(
+        self, method: str, path: str, body: Any = None, headers: dict[str, str] | None = None
+    ) -> tuple[int, Any]:
+        """(status, decoded JSON body or None); 4xx/5xx are returned, not raised."""
+        data = None if body is None else json.dumps(body).encode()
+        request = urllib.request.Request(f"{self.base}{path}", data=data, method=method, headers=headers or {})
+        if data is not None:
+            request.add_header("content-type", "application/json")
+        try:
+            with urllib.request.urlopen(request, timeout=30) as response:
+                content = response.read()
+                return response.status, json.loads(content) if content else None
+        except urllib.error.HTTPError as exc:
+            content = exc.read()
+            return exc.code, json.loads(content) if content else None
+
+    def wait_for(self, condition: Callable[[], bool], what: str, timeout_s: float = DEADLINE_S) -> None:
+        deadline = time.monotonic() + timeout_s
+        while not condition():
+            if self.process.poll() is not None:
+                raise AssertionError(f"posemetry serve exited with {self.process.returncode} waiting for {what}")
+            if time.monotonic() > deadline:
+                raise AssertionError(f"timed out after {timeout_s:.0f} s waiting for {what}")
+            time.sleep(0.2)
+
+    def ready(self) -> bool:
+        try:
+            return self.http("GET", "/readyz")[0] == 200
+        except OSError:
+            return False
+
+    def stop(self) -> int:
+        """SIGTERM, as Ctrl-C would; returns the exit code (the process is killed if it does not stop)."""
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGTERM)
+        try:
+            return self.process.wait(timeout=STOP_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            self.process.wait()
+            raise
+
+
+@contextmanager
+def serve(data_dir: Path, env: dict[str, str], args: Sequence[str] = ()) -> Iterator[Served]:
+    """Start `posemetry serve` (the command's own code path), wait until it is ready, stop it afterwards.
+
+    The exit code is checked by callers that care (`served.stop()` is idempotent).
+    """
+    port = free_port()
+    command = [sys.executable, "-m", "service.cli", "serve", "--data-dir", str(data_dir), "--port", str(port)]
+    process = subprocess.Popen([*command, *args], cwd=REPO, env=env)
+    served = Served(process, f"http://127.0.0.1:{port}")
+    try:
+        served.wait_for(served.ready, "the API to be ready")
+        yield served
+    finally:
+        served.stop()
