@@ -39,6 +39,7 @@ from redis.retry import Retry
 from rq import Queue
 from rq.exceptions import InvalidJobOperation, NoSuchJobError
 from rq.job import Job, JobStatus
+from rq.registry import ScheduledJobRegistry
 
 from service.dispatch import DispatchUnavailableError
 
@@ -397,14 +398,19 @@ class RedisDispatcher:
         return queued
 
     def deliveries_due(self, due: Iterable[tuple[uuid.UUID, int, datetime | None]]) -> int:
-        """Queue attempt `n` of each delivery, now or at its time, unless that job already waits; returns how many
-        were queued. A time in the past means now."""
+        """Queue attempt `n` of each delivery, now or at its time (a time in the past means now); returns how many
+        were queued. One already queued to run is left alone; one scheduled is moved to the time given, since the
+        caller has the newer word on when it is due (an attempt that just failed, a subscription re-enabled)."""
         queued = 0
         queue = self.queues[WEBHOOKS_QUEUE]
+        scheduled = ScheduledJobRegistry(queue=queue)
         try:
             for delivery_id, attempt, at in due:
                 job_id = webhook_job_id(delivery_id, attempt)
-                if _job_status(self.connection, job_id) in _WAITING:
+                status = _job_status(self.connection, job_id)
+                if status == JobStatus.SCHEDULED:
+                    scheduled.remove(job_id)
+                elif status in _WAITING:
                     continue
                 options: dict[str, Any] = {
                     "job_id": job_id,

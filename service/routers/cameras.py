@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import uuid
 from typing import Annotated
 
 from fastapi import APIRouter, Query, Response, status
@@ -81,7 +82,7 @@ def put_camera(
     if before_keeps_images and not body.keep_images:
         repository.delete_kept_images(session, camera_id)  # privacy: stopping keeping images forgets the kept ones
     resolve = False
-    deliveries = []
+    deliveries: list[uuid.UUID] = []
     if old is not None:
         if old[:2] != (body.image_width_px, body.image_height_px):
             was_calibrated = repository.current_calibration(session, camera_id) is not None

@@ -417,7 +417,8 @@ def pending_deliveries(
     """Pending deliveries of enabled subscriptions (worker start-up, the sweep), in id order a page at a time.
 
     The next attempt may start at its scheduled time, or when a lease left by a worker that died runs out.
-    `due_before` keeps only deliveries whose next attempt is due before then.
+    `due_before` (the sweep) keeps only deliveries whose next attempt was due before then and that no attempt
+    holds a lease on: an attempt in flight schedules its own retry.
     """
     stmt = (
         select(
@@ -431,7 +432,10 @@ def pending_deliveries(
     if after is not None:
         stmt = stmt.where(WebhookDelivery.id > after)
     if due_before is not None:
-        stmt = stmt.where(or_(WebhookDelivery.next_attempt_at.is_(None), WebhookDelivery.next_attempt_at < due_before))
+        stmt = stmt.where(
+            or_(WebhookDelivery.next_attempt_at.is_(None), WebhookDelivery.next_attempt_at < due_before),
+            or_(WebhookDelivery.lease_until.is_(None), WebhookDelivery.lease_until < due_before),
+        )
     due = []
     for delivery_id, attempts, next_attempt_at, lease_until in session.execute(stmt):
         times = [t for t in (next_attempt_at, lease_until) if t is not None]
