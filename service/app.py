@@ -17,7 +17,7 @@ from service import __version__
 from service.dispatch import Dispatcher, NullDispatcher
 from service.json_body import register_body_schemas
 from service.problems import PROBLEM_MEDIA_TYPE, BodyGuard, install_handlers
-from service.routers import calibration, cameras, distances, frames, health, pictures, violations
+from service.routers import calibration, cameras, distances, frames, health, pictures, violations, webhooks
 from service.settings import Settings, get_settings
 from service.store import make_engine, make_session_factory
 from service.store.frame_writer import FrameWriter
@@ -87,7 +87,8 @@ def create_app(
     app.state.dispatcher = dispatcher
     install_handlers(app)
     app.add_middleware(BodyGuard, max_body_bytes=settings.max_body_bytes, uploads=(frames.upload_route(settings),))
-    for module in (cameras, frames, pictures, calibration, distances, violations, health):
+    for module in (cameras, frames, pictures, calibration, distances, violations, webhooks, health):
         app.include_router(module.router)
+    app.webhooks.include_router(webhooks.callbacks)
     register_body_schemas(app, frames.JSON_BODIES)
     return app

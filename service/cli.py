@@ -44,7 +44,7 @@ WORKER_STOP_TIMEOUT_S = 30.0
 WORKER_RESTART_DELAY_S = 2.0
 _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 # service.queue.QUEUES, repeated to keep `--help` free of redis/rq imports (a test keeps them equal).
-QUEUE_NAMES = ("frames", "pose", "calibration")
+QUEUE_NAMES = ("frames", "webhooks", "pose", "calibration")
 
 
 def _version(value: bool) -> None:
@@ -286,7 +286,7 @@ def worker(
         None,
         "--queue",
         "-q",
-        help="Queue to serve, repeatable, in priority order: frames, pose, calibration (default all three).",
+        help="Queue to serve, repeatable, in priority order: frames, webhooks, pose, calibration (default all four).",
     ),
     burst: bool = typer.Option(False, "--burst", help="Exit once the queues are empty (batch runs, tests)."),
     fork: bool = typer.Option(False, "--fork", help="Run each job in a forked child (isolation at ~10 ms per job)."),

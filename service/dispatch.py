@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import threading
 import uuid
+from collections.abc import Iterable
 from dataclasses import dataclass, field
+from datetime import datetime
 from typing import Protocol, runtime_checkable
 
 
@@ -34,6 +36,10 @@ class Dispatcher(Protocol):
         """Solve the camera's calibration: because evidence grew (forced=False) or on demand (forced=True,
         the new version becomes current even if less well supported)."""
 
+    def deliveries_due(self, due: Iterable[tuple[uuid.UUID, int, datetime | None]]) -> int:
+        """Webhook deliveries are committed (pending): make attempt number n of each, at its time (None: now).
+        Returns how many attempts were queued (one already waiting is not queued again)."""
+
     def ready(self) -> bool:
         """Whether work can be queued now (for /readyz); may raise DispatchUnavailableError instead of False."""
 
@@ -53,6 +59,9 @@ class NullDispatcher:
     def calibration_requested(self, camera_id: str, forced: bool) -> None:
         return None
 
+    def deliveries_due(self, due: Iterable[tuple[uuid.UUID, int, datetime | None]]) -> int:
+        return 0
+
     def ready(self) -> bool:
         return True
 
@@ -65,6 +74,7 @@ class RecordingDispatcher:
     frames: list[tuple[str, uuid.UUID]] = field(default_factory=list)
     images: list[tuple[str, uuid.UUID]] = field(default_factory=list)
     calibrations: list[tuple[str, bool]] = field(default_factory=list)
+    deliveries: list[tuple[uuid.UUID, int, datetime | None]] = field(default_factory=list)
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
     def _check(self) -> None:
@@ -85,6 +95,13 @@ class RecordingDispatcher:
         self._check()
         with self._lock:
             self.calibrations.append((camera_id, forced))
+
+    def deliveries_due(self, due: Iterable[tuple[uuid.UUID, int, datetime | None]]) -> int:
+        self._check()
+        items = list(due)
+        with self._lock:
+            self.deliveries.extend(items)
+        return len(items)
 
     def ready(self) -> bool:
         self._check()

@@ -13,6 +13,9 @@ the change that prompted the request.
   instead of per frame) and an idle camera's frame is answered as soon as a worker is free. Measuring is
   idempotent (a recomputed frame overwrites its result and replaces its violation events).
 - `calibration`: solves.
+- `webhooks`: one job per attempt of a webhook delivery (`webhook-<delivery uuid>-<attempt>`), due now or at a
+  time (retries wait in RQ's scheduled-job registry, which workers serving this queue run a scheduler for). The
+  delivery's state is in SQL and an attempt is claimed there before it is sent, so a job queued twice sends once.
 - `pose`: one job per image frame (pose inference, the expensive step), with a deterministic job id
   (`pose-<frame uuid>`) so re-enqueueing every image frame still waiting (a worker restarting) never queues one
   twice. Pose jobs store their people only while the frame is still `detecting`, so a duplicate run is harmless.
@@ -26,6 +29,7 @@ import time
 import uuid
 from collections.abc import Iterable
 from dataclasses import dataclass
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -35,6 +39,7 @@ from redis.retry import Retry
 from rq import Queue
 from rq.exceptions import InvalidJobOperation, NoSuchJobError
 from rq.job import Job, JobStatus
+from rq.registry import ScheduledJobRegistry
 
 from service.dispatch import DispatchUnavailableError
 
@@ -44,13 +49,16 @@ if TYPE_CHECKING:
 FRAMES_QUEUE = "frames"
 CALIBRATION_QUEUE = "calibration"
 POSE_QUEUE = "pose"
-# Frames first: measuring is cheap and latency-bound; pose and solves are slow and can wait for a free moment.
-QUEUES = (FRAMES_QUEUE, POSE_QUEUE, CALIBRATION_QUEUE)
+WEBHOOKS_QUEUE = "webhooks"
+# Frames first: measuring is cheap and latency-bound, and so are alerts; pose and solves are slow and can wait for
+# a free moment.
+QUEUES = (FRAMES_QUEUE, WEBHOOKS_QUEUE, POSE_QUEUE, CALIBRATION_QUEUE)
 
 # Jobs are named by dotted path: the service must not import the workers package (it pulls in the geometry).
 MEASURE_FRAMES_JOB = "workers.jobs.measure_frames"
 CALIBRATE_CAMERA_JOB = "workers.jobs.calibrate_camera"
 DETECT_PEOPLE_JOB = "workers.jobs.detect_people"
+DELIVER_WEBHOOK_JOB = "workers.webhooks.deliver_webhook"
 
 # A measuring job stops taking new chunks after FRAMES_JOB_BUDGET_S (and queues its own re-run), so one busy
 # camera cannot hold a worker while other cameras wait.
@@ -58,6 +66,8 @@ FRAMES_JOB_BUDGET_S = 5
 FRAMES_JOB_TIMEOUT_S = 120
 CALIBRATION_JOB_TIMEOUT_S = 600
 POSE_JOB_TIMEOUT_S = 300
+# Far above the longest request a delivery may make (settings.webhook_timeout_s is at most 60 s per phase).
+WEBHOOK_JOB_TIMEOUT_S = 300
 # A lock outlives its job's timeout, so only a worker that died mid-job (killed, machine lost) leaves one behind,
 # and it expires on its own rather than blocking the camera for ever. Measuring jobs refresh theirs per chunk.
 FRAMES_LOCK_TTL_S = FRAMES_JOB_TIMEOUT_S + 60
@@ -303,6 +313,12 @@ def pose_job_id(frame_id: uuid.UUID | str) -> str:
     return f"pose-{frame_id}"
 
 
+def webhook_job_id(delivery_id: uuid.UUID | str, attempt: int) -> str:
+    """One id per attempt: a running attempt schedules the next one, which must not share its id (RQ deletes a
+    finished job's id, and the scheduled one with it)."""
+    return f"webhook-{delivery_id}-{attempt}"
+
+
 def _job_status(connection: redis.Redis, job_id: str) -> JobStatus | None:
     try:
         return Job.fetch(job_id, connection=connection).get_status()
@@ -333,6 +349,7 @@ class RedisDispatcher:
             FRAMES_QUEUE: Queue(FRAMES_QUEUE, connection=connection),
             CALIBRATION_QUEUE: Queue(CALIBRATION_QUEUE, connection=connection),
             POSE_QUEUE: Queue(POSE_QUEUE, connection=connection),
+            WEBHOOKS_QUEUE: Queue(WEBHOOKS_QUEUE, connection=connection),
         }
         self.gates = {
             FRAMES_QUEUE: CameraGate(connection, FRAMES_QUEUE, lock_ttl_s=FRAMES_LOCK_TTL_S),
@@ -375,6 +392,37 @@ class RedisDispatcher:
                     result_ttl=0,
                     failure_ttl=FAILED_JOB_TTL_S,
                 )
+                queued += 1
+        except _REDIS_ERRORS as exc:
+            raise DispatchUnavailableError(f"job queue unavailable: {exc}") from exc
+        return queued
+
+    def deliveries_due(self, due: Iterable[tuple[uuid.UUID, int, datetime | None]]) -> int:
+        """Queue attempt `n` of each delivery, now or at its time (a time in the past means now); returns how many
+        were queued. One already queued to run is left alone; one scheduled is moved to the time given, since the
+        caller has the newer word on when it is due (an attempt that just failed, a subscription re-enabled)."""
+        queued = 0
+        queue = self.queues[WEBHOOKS_QUEUE]
+        scheduled = ScheduledJobRegistry(queue=queue)
+        try:
+            for delivery_id, attempt, at in due:
+                job_id = webhook_job_id(delivery_id, attempt)
+                status = _job_status(self.connection, job_id)
+                if status == JobStatus.SCHEDULED:
+                    scheduled.remove(job_id)
+                elif status in _WAITING:
+                    continue
+                options: dict[str, Any] = {
+                    "job_id": job_id,
+                    "description": f"webhook delivery {delivery_id}, attempt {attempt}",
+                    "job_timeout": WEBHOOK_JOB_TIMEOUT_S,
+                    "result_ttl": 0,
+                    "failure_ttl": FAILED_JOB_TTL_S,
+                }
+                if at is None or at <= datetime.now(UTC):
+                    queue.enqueue(DELIVER_WEBHOOK_JOB, str(delivery_id), attempt, **options)
+                else:
+                    queue.enqueue_at(at, DELIVER_WEBHOOK_JOB, str(delivery_id), attempt, **options)
                 queued += 1
         except _REDIS_ERRORS as exc:
             raise DispatchUnavailableError(f"job queue unavailable: {exc}") from exc

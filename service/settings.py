@@ -8,11 +8,12 @@ workers need live here; geometry tuning stays in `service.geometry` because it i
 from __future__ import annotations
 
 from functools import lru_cache
+from ipaddress import IPv4Network, IPv6Network
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import Field, field_validator, model_validator
-from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 ENV_PREFIX = "POSEMETRY_"
 DEFAULT_DATABASE_FILE = "posemetry.sqlite3"
@@ -120,6 +121,71 @@ class Settings(BaseSettings):
         description="CPU threads each onnxruntime session may use. Unset: the number of cores this process may "
         "run on; lower it when several workers share a machine.",
     )
+    webhook_max_attempts: int = Field(
+        default=12,
+        ge=1,
+        le=100,
+        description="Attempts per webhook delivery before it is given up (each retry waits twice as long as the "
+        "one before, up to `webhook_retry_cap_s`). The defaults keep retrying for 2.5 to 3.5 hours, so a "
+        "receiver that is down for a while still gets every event.",
+    )
+    webhook_retry_base_s: float = Field(
+        default=10.0,
+        gt=0,
+        le=86_400,
+        description="Wait before the first retry of a failed webhook delivery, in seconds; retry n waits "
+        "base x 2^(n-1), shortened by up to a quarter at random so retries to one receiver spread out.",
+    )
+    webhook_retry_cap_s: float = Field(
+        default=3600.0,
+        gt=0,
+        le=7 * 86_400,
+        description="Longest wait between two attempts of a webhook delivery, in seconds (also caps a "
+        "receiver's Retry-After).",
+    )
+    webhook_timeout_s: float = Field(
+        default=10.0,
+        gt=0,
+        le=60,
+        description="Time a webhook receiver has to connect, read the request and answer, in seconds; a slower "
+        "answer counts as a failed attempt and is retried.",
+    )
+    webhook_allowed_networks: Annotated[tuple[IPv4Network | IPv6Network, ...], NoDecode] = Field(
+        default=(),
+        description="Address ranges webhooks may be sent to although the SSRF policy refuses them (loopback, "
+        "private, link-local, ...), comma-separated CIDR, e.g. `10.20.0.0/16,fd00:1::/64`. Empty: only public "
+        "addresses. Checked on subscribing and on every connection.",
+    )
+    webhook_cooldown_s: float = Field(
+        default=60.0,
+        ge=0,
+        le=86_400,
+        description="A pair of people that raised a `violation.detected` webhook raises no new one for this "
+        "many seconds (frame time) while both still stand where they were (see `webhook_cooldown_radius_m`). "
+        "0: every frame with a violation raises an event.",
+    )
+    webhook_cooldown_radius_m: float = Field(
+        default=1.0,
+        gt=0,
+        le=100,
+        description="How far (metres on the ground) each person of a violating pair may be from where an "
+        "alerted pair was last seen and still count as that pair during its cooldown. People carry no identity "
+        "across frames, so a pair is recognised by where its two people stand.",
+    )
+    webhook_log_retention_days: float = Field(
+        default=30.0,
+        gt=0,
+        description="Webhook events older than this many days are deleted with their delivery logs once none "
+        "of their deliveries is still pending.",
+    )
+
+    @field_validator("webhook_allowed_networks", mode="before")
+    @classmethod
+    def _split_networks(cls, value: object) -> object:
+        """A comma-separated string from the environment; lists of strings or networks from code."""
+        if isinstance(value, str):
+            return tuple(part.strip() for part in value.split(",") if part.strip())
+        return value
 
     @field_validator("data_dir")
     @classmethod
@@ -146,6 +212,6 @@ def settings_table() -> str:
     lines = ["| variable | default | meaning |", "| --- | --- | --- |"]
     for name, info in Settings.model_fields.items():
         default = info.default
-        shown = "(unset)" if default in (None, "") else str(default)
+        shown = "(unset)" if default in (None, "", ()) else str(default)
         lines.append(f"| `{ENV_PREFIX}{name.upper()}` | `{shown}` | {info.description} |")
     return "\n".join(lines)

@@ -23,6 +23,7 @@ from rq import get_current_job
 from sqlalchemy import Engine
 from sqlalchemy.orm import Session, sessionmaker
 
+from service.dispatch import DispatchUnavailableError
 from service.queue import CALIBRATION_QUEUE, FRAMES_JOB_BUDGET_S, FRAMES_QUEUE, RedisDispatcher, new_job_id
 from service.settings import Settings, get_settings
 from service.store import CalibrationVersion, Camera, Frame, make_engine, make_session_factory
@@ -41,6 +42,7 @@ from service.store.repository import (
     record_frame_outcomes,
     sample_evidence,
 )
+from service.webhooks.events import calibration_deliveries, first_attempts, violation_deliveries
 
 log = logging.getLogger(__name__)
 
@@ -113,6 +115,16 @@ def preload_pose(settings: Settings) -> None:
 def _transaction(settings: Settings) -> Iterator[Session]:
     with session_factory(settings)() as session, session.begin():
         yield session
+
+
+def _announce(dispatcher: RedisDispatcher, deliveries: list[uuid.UUID]) -> None:
+    """Queue committed webhook deliveries; if Redis fails now they stay pending in SQL for the sweep."""
+    if not deliveries:
+        return
+    try:
+        dispatcher.deliveries_due(first_attempts(deliveries))
+    except DispatchUnavailableError as exc:
+        log.warning("could not queue %d webhook deliveries (the sweep will): %s", len(deliveries), exc)
 
 
 def _dispatcher(settings: Settings) -> RedisDispatcher:
@@ -227,6 +239,9 @@ def _measure_pending(settings: Settings, dispatcher: RedisDispatcher, camera_id:
         if outcomes:
             with _transaction(settings) as session:
                 record_frame_outcomes(session, outcomes)
+                client_ids = {frame.id: frame.client_frame_id for frame in frames}
+                deliveries = violation_deliveries(session, camera, outcomes, settings, client_frame_ids=client_ids)
+            _announce(dispatcher, deliveries)
         failed = [o for o in outcomes if o.status == "failed"]
         for o in failed:
             log.warning("frame %s of camera %s failed: %s", o.frame_id, camera_id, o.error)
@@ -340,6 +355,7 @@ def _solve(settings: Settings, dispatcher: RedisDispatcher, camera_id: str, *, f
             record = add_calibration(session, camera_id, values, make_current=make_current, forced=forced)
             version = record.version
             waiting = make_current and bool(pending_frames(session, camera_id, limit=1))
+            deliveries = calibration_deliveries(session, camera_id, record, current) if make_current else []
     except CameraNotFoundError:
         return GONE
     log.info(
@@ -352,6 +368,7 @@ def _solve(settings: Settings, dispatcher: RedisDispatcher, camera_id: str, *, f
         people_used,
         evidence_count,
     )
+    _announce(dispatcher, deliveries)
     if waiting:
         dispatcher.measure_requested([camera_id])
     if values.status != "ok":

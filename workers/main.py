@@ -1,10 +1,15 @@
 """The worker process: `posemetry worker --queue frames --queue calibration` (or `python -m workers.main`).
 
-On start, before taking any job, a worker asks for every camera with pending frames to be measured and for a
-solve of every camera whose evidence calls for one. The API stores first and enqueues second, so anything
-accepted while Redis was down (or lost with a Redis that was wiped) is still in SQL; this start-up pass hands it
-to the queues again. Requests are deduplicated per camera, so every worker may do it and several workers starting
+On start, before taking any job, a worker asks for every camera with pending frames to be measured, for a
+solve of every camera whose evidence calls for one, and for the next attempt of every pending webhook delivery
+(at its time). The API stores first and enqueues second, so anything accepted while Redis was down (or lost with
+a Redis that was wiped) is still in SQL; this start-up pass hands it to the queues again. Requests are
+deduplicated per camera, and delivery attempts by job id, so every worker may do it and several workers starting
 together do not multiply work.
+
+A worker serving the `webhooks` queue also runs RQ's scheduler (retries wait in its scheduled-job registry;
+RQ elects one scheduler per queue among the workers). Every worker, with RQ's maintenance every ten minutes,
+sweeps SQL for deliveries whose attempt is overdue because queuing it failed (Redis down when a retry was due).
 """
 
 from __future__ import annotations
@@ -13,12 +18,16 @@ import argparse
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
+from datetime import timedelta
+from typing import Any
 
 from rq import Queue, SimpleWorker, Worker
 
-from service.queue import POSE_QUEUE, QUEUES, RedisDispatcher, connect, redis_url, wait_for_redis
+from service.queue import POSE_QUEUE, QUEUES, WEBHOOKS_QUEUE, RedisDispatcher, connect, redis_url, wait_for_redis
 from service.settings import Settings, get_settings
+from service.store.models import utc_now
 from service.store.repository import calibration_due, cameras_with_pending_frames, frames_detecting, list_cameras
+from service.store.webhooks import pending_deliveries
 from workers import jobs
 
 log = logging.getLogger(__name__)
@@ -26,6 +35,8 @@ log = logging.getLogger(__name__)
 # Cameras are read a page at a time.
 _PAGE = 1000
 REDIS_START_TIMEOUT_S = 30.0
+# The sweep leaves alone deliveries whose attempt is due less than this long ago (their job is on its way).
+SWEEP_GRACE_S = 60.0
 
 
 @dataclass(frozen=True)
@@ -37,6 +48,24 @@ class Requeued:
     images: int
     """Image frames whose pose job was queued."""
     calibrations: int
+    deliveries: int = 0
+    """Webhook delivery attempts queued (now or at their time)."""
+
+
+def requeue_deliveries(settings: Settings, dispatcher: RedisDispatcher, *, overdue_only: bool = False) -> int:
+    """Queue the next attempt of every pending webhook delivery; with `overdue_only`, only of those due more
+    than SWEEP_GRACE_S ago (the periodic sweep). Returns how many jobs were queued."""
+    factory = jobs.read_session_factory(settings)
+    due_before = utc_now() - timedelta(seconds=SWEEP_GRACE_S) if overdue_only else None
+    queued = 0
+    after = None
+    while True:
+        with factory() as session:
+            due = pending_deliveries(session, limit=_PAGE, after=after, due_before=due_before)
+        queued += dispatcher.deliveries_due((d.delivery_id, d.attempt, d.at) for d in due)
+        if len(due) < _PAGE:
+            return queued
+        after = due[-1].delivery_id
 
 
 def requeue_pending(settings: Settings, dispatcher: RedisDispatcher) -> Requeued:
@@ -65,7 +94,36 @@ def requeue_pending(settings: Settings, dispatcher: RedisDispatcher) -> Requeued
         if len(cameras) < _PAGE:
             break
         after = cameras[-1].id
-    return Requeued(frames=frames, images=images, calibrations=calibrations)
+    deliveries = requeue_deliveries(settings, dispatcher)
+    return Requeued(frames=frames, images=images, calibrations=calibrations, deliveries=deliveries)
+
+
+class _SweepsDeliveries:
+    """Adds the webhook sweep to RQ's periodic maintenance (which runs in the worker, between jobs)."""
+
+    connection: Any
+
+    def __init__(self, *args: Any, settings: Settings | None = None, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.settings = settings or get_settings()
+
+    def run_maintenance_tasks(self) -> None:
+        super().run_maintenance_tasks()  # type: ignore[misc]
+        try:
+            queued = requeue_deliveries(self.settings, RedisDispatcher(self.connection), overdue_only=True)
+        except Exception:  # a failed sweep must not stop the worker; the next one tries again
+            log.exception("webhook delivery sweep failed")
+            return
+        if queued:
+            log.warning("sweep: queued %d overdue webhook delivery attempts", queued)
+
+
+class SweepingSimpleWorker(_SweepsDeliveries, SimpleWorker):
+    """SimpleWorker (jobs in the worker process) with the webhook sweep."""
+
+
+class SweepingWorker(_SweepsDeliveries, Worker):
+    """Worker (a forked child per job) with the webhook sweep."""
 
 
 def run_worker(
@@ -90,16 +148,19 @@ def run_worker(
     wait_for_redis(connection, timeout_s=REDIS_START_TIMEOUT_S)
     requeued = requeue_pending(settings, RedisDispatcher(connection))
     log.info(
-        "requested measuring for %d cameras, pose for %d image frames and %d due calibrations",
+        "requested measuring for %d cameras, pose for %d image frames, %d due calibrations and %d webhook attempts",
         requeued.frames,
         requeued.images,
         requeued.calibrations,
+        requeued.deliveries,
     )
-    # Forked children must open their own database connections, never inherit the parent's.
+    # Forked children (jobs, RQ's scheduler) must open their own database connections, never inherit the parent's.
     jobs.dispose_engines()
-    worker_class = Worker if fork else SimpleWorker
-    worker = worker_class([Queue(queue, connection=connection) for queue in queues], connection=connection, name=name)
-    worker.work(burst=burst, logging_level="INFO")
+    worker_class = SweepingWorker if fork else SweepingSimpleWorker
+    worker = worker_class(
+        [Queue(queue, connection=connection) for queue in queues], connection=connection, name=name, settings=settings
+    )
+    worker.work(burst=burst, logging_level="INFO", with_scheduler=WEBHOOKS_QUEUE in queues)
     return requeued
 
 

@@ -18,6 +18,7 @@ from service.schemas import (
 from service.settings import Settings
 from service.store import repository
 from service.store.models import CalibrationVersion, Camera
+from service.webhooks.events import first_attempts, status_changed_deliveries
 
 from .common import (
     CameraIdPath,
@@ -168,10 +169,14 @@ def reset_calibration(
 ) -> CalibrationStatus:
     """Make the camera uncalibrated (history is kept); with stored evidence, a fresh solve is requested."""
     camera = require_camera(session, camera_id)
+    was_calibrated = repository.current_calibration(session, camera_id) is not None
     repository.reset_calibration(session, camera_id, drop_evidence=drop_evidence)
+    deliveries = status_changed_deliveries(session, camera_id, None, "calibrated", "reset") if was_calibrated else []
     session.commit()
     result = calibration_status(session, camera, settings)
     session.commit()
+    if deliveries:
+        nudge_best_effort("queue webhook deliveries", dispatcher.deliveries_due, first_attempts(deliveries))
     if result.status == "calibrating":
         nudge_best_effort("request a solve after reset", dispatcher.calibration_requested, camera_id, forced=False)
     return result

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import uuid
 from typing import Annotated
 
 from fastapi import APIRouter, Query, Response, status
@@ -9,6 +10,7 @@ from fastapi import APIRouter, Query, Response, status
 from service.schemas import METRES_PER_FOOT, CameraList, CameraOut, CameraSettings
 from service.store import repository
 from service.store.models import Camera
+from service.webhooks.events import first_attempts, status_changed_deliveries
 
 from .common import (
     CameraIdPath,
@@ -80,12 +82,18 @@ def put_camera(
     if before_keeps_images and not body.keep_images:
         repository.delete_kept_images(session, camera_id)  # privacy: stopping keeping images forgets the kept ones
     resolve = False
+    deliveries: list[uuid.UUID] = []
     if old is not None:
         if old[:2] != (body.image_width_px, body.image_height_px):
+            was_calibrated = repository.current_calibration(session, camera_id) is not None
             repository.reset_calibration(session, camera_id, drop_evidence=True)
+            if was_calibrated:
+                deliveries = status_changed_deliveries(session, camera_id, None, "calibrated", "image size changed")
         elif old[2:] != (body.person_height_m, body.equal_focal, body.known_focal_px):
             resolve = True
     session.commit()
+    if deliveries:
+        nudge_best_effort("queue webhook deliveries", dispatcher.deliveries_due, first_attempts(deliveries))
     if resolve:
         nudge_best_effort("request a re-solve", dispatcher.calibration_requested, camera_id, forced=True)
     response.status_code = status.HTTP_201_CREATED if created else status.HTTP_200_OK

@@ -6,6 +6,7 @@ callers need to open a database.
 
 from .db import make_engine, make_session_factory, normalise_url
 from .models import Base, CalibrationVersion, Camera, Frame, FrameImage, Observation, ViolationEvent
+from .webhook_models import ViolationCooldown, WebhookAttempt, WebhookDelivery, WebhookEvent, WebhookSubscription
 
 __all__ = [
     "Base",
@@ -14,7 +15,12 @@ __all__ = [
     "Frame",
     "FrameImage",
     "Observation",
+    "ViolationCooldown",
     "ViolationEvent",
+    "WebhookAttempt",
+    "WebhookDelivery",
+    "WebhookEvent",
+    "WebhookSubscription",
     "make_engine",
     "make_session_factory",
     "normalise_url",

@@ -15,6 +15,14 @@ from service.store.migrate import current_revision, head_revision, schema_differ
 from service.store.models import Base
 
 TABLES = {"cameras", "frames", "frame_images", "observations", "calibrations", "violation_events"}
+WEBHOOK_TABLES = {
+    "webhook_subscriptions",
+    "webhook_events",
+    "webhook_deliveries",
+    "webhook_attempts",
+    "violation_cooldowns",
+}
+TABLES |= WEBHOOK_TABLES
 
 
 def test_upgrade_builds_the_models_schema(database_url: str) -> None:
