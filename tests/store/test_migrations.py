@@ -14,7 +14,7 @@ from service.store import make_engine
 from service.store.migrate import current_revision, head_revision, schema_differences, upgrade
 from service.store.models import Base
 
-TABLES = {"cameras", "frames", "frame_images", "observations", "calibrations", "violation_events"}
+TABLES = {"cameras", "frames", "frame_images", "observations", "calibrations", "violation_events", "api_keys"}
 
 
 def test_upgrade_builds_the_models_schema(database_url: str) -> None:
