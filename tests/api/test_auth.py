@@ -7,6 +7,7 @@ import time
 import uuid
 from collections.abc import Callable, Iterator
 from datetime import UTC, datetime, timedelta
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -462,3 +463,12 @@ def test_a_camera_created_by_the_admin_is_usable_by_a_key_made_later(
 ) -> None:
     scoped = client_for(new_key(client, cameras=[camera])["token"])
     assert scoped.get(f"/v1/cameras/{camera}/calibration").json()["status"] == "uncalibrated"
+
+
+def test_a_key_that_cannot_be_checked_is_a_503_not_a_500(settings: Settings, tmp_path: Path) -> None:
+    """The database fails the look-up (here: it lacks the schema): the caller is told to retry, not let in."""
+    broken = _app(settings, database_url=f"sqlite:///{tmp_path / 'unmigrated.sqlite3'}")
+    with TestClient(broken, headers=bearer("pm_0123456789ab_" + "A" * 43)) as caller:
+        assert_problem(caller.get("/v1/cameras"), 503, "cannot be checked")
+    with TestClient(broken, headers=bearer(ADMIN_KEY)) as admin:  # the configured admin key needs no database
+        assert admin.get("/v1/keys/current").status_code == 200
