@@ -10,14 +10,17 @@ import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
-from fastapi import FastAPI
+from fastapi import Depends, FastAPI
 from sqlalchemy import Engine
 
 from service import __version__
+from service.auth.authenticator import Authenticator
+from service.auth.dependencies import AUTH_RESPONSE_DESCRIPTIONS, require_key
+from service.auth.middleware import AuthenticateBeforeBody
 from service.dispatch import Dispatcher, NullDispatcher
 from service.json_body import register_body_schemas
 from service.problems import PROBLEM_MEDIA_TYPE, BodyGuard, install_handlers
-from service.routers import calibration, cameras, distances, frames, health, pictures, violations, webhooks
+from service.routers import calibration, cameras, distances, frames, health, keys, pictures, violations, webhooks
 from service.settings import Settings, get_settings
 from service.store import make_engine, make_session_factory
 from service.store.frame_writer import FrameWriter
@@ -29,6 +32,10 @@ DESCRIPTION = """Camera auto-calibration and physical distances from human pose.
 Post people's keypoints per camera; the service calibrates each camera from the people it sees and reports how
 far apart people stand, in metres, with a 1-sigma uncertainty. Every error is an RFC 9457
 `application/problem+json` document.
+
+Every route except `/healthz` and `/readyz` needs an API key: `Authorization: Bearer <key>` (401 without one).
+Admin keys create keys with `POST /v1/keys`; a key may be limited to some cameras (403 for the others). This
+documentation (`/docs`, `/redoc`, `/openapi.json`) is public: it describes the API and holds no data.
 """
 
 PROBLEM_SCHEMA = {
@@ -47,6 +54,13 @@ PROBLEM_RESPONSES: dict[int | str, dict[str, object]] = {
     "4XX": {"description": "Problem details (RFC 9457)", "content": {PROBLEM_MEDIA_TYPE: {"schema": PROBLEM_SCHEMA}}},
     "5XX": {"description": "Problem details (RFC 9457)", "content": {PROBLEM_MEDIA_TYPE: {"schema": PROBLEM_SCHEMA}}},
 }
+AUTH_RESPONSES: dict[int | str, dict[str, object]] = {
+    status: {"description": text, "content": {PROBLEM_MEDIA_TYPE: {"schema": PROBLEM_SCHEMA}}}
+    for status, text in AUTH_RESPONSE_DESCRIPTIONS.items()
+}
+# Routers anyone may call: liveness and readiness, for load balancers and orchestrators that hold no key.
+PUBLIC_ROUTERS = (health,)
+ROUTERS = (cameras, frames, pictures, calibration, distances, violations, webhooks, keys, health)
 
 
 def create_app(
@@ -85,10 +99,23 @@ def create_app(
     app.state.read_session_factory = make_session_factory(engine, read_only=True)
     app.state.frame_writer = FrameWriter(app.state.session_factory)
     app.state.dispatcher = dispatcher
+    app.state.authenticator = Authenticator(
+        admin_key=None if settings.admin_key is None else settings.admin_key.get_secret_value(),
+        read_sessions=app.state.read_session_factory,
+        write_sessions=app.state.session_factory,
+        cache_ttl_s=settings.api_key_cache_ttl_s,
+    )
     install_handlers(app)
     app.add_middleware(BodyGuard, max_body_bytes=settings.max_body_bytes, uploads=(frames.upload_route(settings),))
-    for module in (cameras, frames, pictures, calibration, distances, violations, webhooks, health):
-        app.include_router(module.router)
+    # Added last, so it runs first: a body is not read for a caller without a key.
+    public_paths = frozenset(route.path for module in PUBLIC_ROUTERS for route in module.router.routes)
+    app.add_middleware(AuthenticateBeforeBody, authenticator=app.state.authenticator, public_paths=public_paths)
+    # Protected unless listed as public: a router added to ROUTERS later needs a key without anyone remembering.
+    for module in ROUTERS:
+        if module in PUBLIC_ROUTERS:
+            app.include_router(module.router)
+        else:
+            app.include_router(module.router, dependencies=[Depends(require_key)], responses=AUTH_RESPONSES)
     app.webhooks.include_router(webhooks.callbacks)
     register_body_schemas(app, frames.JSON_BODIES)
     return app

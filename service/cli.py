@@ -17,6 +17,7 @@ import typer
 from rich.console import Console
 
 from service import __version__
+from service.auth.cli import keys_app
 from service.pose.cli import models_app
 
 if TYPE_CHECKING:
@@ -31,6 +32,7 @@ app = typer.Typer(
 bench_app = typer.Typer(help="Benchmarks: accuracy against the paper's protocol, and speed.", no_args_is_help=True)
 app.add_typer(bench_app, name="bench")
 app.add_typer(models_app, name="models")
+app.add_typer(keys_app, name="keys")
 db_app = typer.Typer(help="The SQL store: schema migrations.", no_args_is_help=True)
 app.add_typer(db_app, name="db")
 
@@ -309,6 +311,9 @@ def api(
     """Run the HTTP API (uvicorn); the workers run separately (`posemetry worker`)."""
     import uvicorn
 
+    from service.auth.cli import warn_without_admin_key
+
+    warn_without_admin_key(Console(stderr=True))
     uvicorn.run("service.cli:create_api", factory=True, host=host, port=port, workers=processes, log_level=log_level)
 
 
@@ -335,6 +340,7 @@ def serve(
     """
     import uvicorn
 
+    from service.auth.cli import announce_first_admin_key
     from service.queue import EmbeddedRedis
     from service.settings import get_settings
 
@@ -344,6 +350,7 @@ def serve(
     settings = get_settings()
     console = Console(stderr=True)
     _migrate(settings.database_url)
+    announce_first_admin_key(console)
     embedded = None
     if not settings.redis_url:
         embedded = EmbeddedRedis(settings.data_dir).start()

@@ -29,13 +29,19 @@ log = logging.getLogger(__name__)
 
 
 class ProblemError(Exception):
-    """Raise from a handler to answer with a problem document (`kind` becomes the `type` URI's last segment)."""
+    """Raise from a handler to answer with a problem document (`kind` becomes the `type` URI's last segment).
 
-    def __init__(self, status: int, kind: str, detail: str, **extensions: Any) -> None:
+    `headers` go on the response (401 needs `WWW-Authenticate`); `extensions` become extra body members.
+    """
+
+    def __init__(
+        self, status: int, kind: str, detail: str, *, headers: dict[str, str] | None = None, **extensions: Any
+    ) -> None:
         super().__init__(detail)
         self.status = status
         self.kind = kind
         self.detail = detail
+        self.headers = headers
         self.extensions = extensions
 
 
@@ -110,7 +116,9 @@ def install_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(ProblemError)
     async def _problem(request: Request, exc: ProblemError) -> JSONResponse:
-        return problem_response(exc.status, exc.kind, exc.detail, request.url.path, **exc.extensions)
+        return problem_response(
+            exc.status, exc.kind, exc.detail, request.url.path, headers=exc.headers, **exc.extensions
+        )
 
     @app.exception_handler(RequestValidationError)
     async def _validation(request: Request, exc: RequestValidationError) -> JSONResponse:

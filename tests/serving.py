@@ -28,9 +28,15 @@ def free_port() -> int:
         return int(sock.getsockname()[1])
 
 
+# The admin key the served API is started with (POSEMETRY_ADMIN_KEY); `Served.http` sends it.
+ADMIN_KEY = "serve-test-admin-key-0123456789abcdefghijklmnop"
+
+
 def clean_environment(**settings: str) -> dict[str, str]:
-    """This process's environment without any POSEMETRY_* setting, plus `settings` (names without the prefix)."""
+    """This process's environment without any POSEMETRY_* setting, plus the admin key and `settings` (names
+    without the prefix)."""
     env = {key: value for key, value in os.environ.items() if not key.startswith("POSEMETRY_")}
+    env["POSEMETRY_ADMIN_KEY"] = ADMIN_KEY
     env.update({f"POSEMETRY_{name.upper()}": value for name, value in settings.items()})
     return env
 
@@ -41,13 +47,17 @@ class Served:
 
     process: subprocess.Popen[bytes]
     base: str
+    api_key: str | None = None
+    """Sent as `Authorization: Bearer` on every request unless a call passes its own headers."""
 
     def http(
         self, method: str, path: str, body: Any = None, headers: dict[str, str] | None = None
     ) -> tuple[int, Any]:
         """(status, decoded JSON body or None); 4xx/5xx are returned, not raised."""
         data = None if body is None else json.dumps(body).encode()
-        request = urllib.request.Request(f"{self.base}{path}", data=data, method=method, headers=headers or {})
+        if headers is None:
+            headers = {} if self.api_key is None else {"Authorization": f"Bearer {self.api_key}"}
+        request = urllib.request.Request(f"{self.base}{path}", data=data, method=method, headers=headers)
         if data is not None:
             request.add_header("content-type", "application/json")
         try:
@@ -94,7 +104,7 @@ def serve(data_dir: Path, env: dict[str, str], args: Sequence[str] = ()) -> Iter
     port = free_port()
     command = [sys.executable, "-m", "service.cli", "serve", "--data-dir", str(data_dir), "--port", str(port)]
     process = subprocess.Popen([*command, *args], cwd=REPO, env=env)
-    served = Served(process, f"http://127.0.0.1:{port}")
+    served = Served(process, f"http://127.0.0.1:{port}", env.get("POSEMETRY_ADMIN_KEY"))
     try:
         served.wait_for(served.ready, "the API to be ready")
         yield served

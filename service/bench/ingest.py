@@ -5,8 +5,10 @@ Two measurements, both on this machine:
 - Ingest: `posemetry serve` (embedded mode: SQLite, embedded Redis, its workers and the API) is started as a
   subprocess on a temporary data directory and a free port, cameras are created, and simulated keypoint frames
   (service.geometry.simulate's surveillance preset, 20 people per frame) are POSTed by `concurrency` client
-  threads on keep-alive connections for a fixed time. Throughput counts accepted frames (202); latency is per
-  request, client side. The workers run alongside, answering the frames and calibrating, as they would in use.
+  threads on keep-alive connections for a fixed time, with a camera-scoped API key stored in the database (so
+  each request pays for authentication as a camera gateway's would: the key cache, not the admin setting).
+  Throughput counts accepted frames (202); latency is per request, client side. The workers run alongside,
+  answering the frames and calibrating, as they would in use.
 - Calibration job: a camera's evidence is written straight into a fresh SQLite database through the store's
   Core tables (10^3, 10^5 and optionally 10^6 observations), then `workers.jobs.calibrate_camera` runs forced,
   in process, against an embedded Redis; the job's time is split into the evidence sample (SQL) and the solve.
@@ -19,6 +21,7 @@ from __future__ import annotations
 import http.client
 import json
 import os
+import secrets
 import signal
 import socket
 import subprocess
@@ -110,10 +113,11 @@ def free_port() -> int:
         return int(sock.getsockname()[1])
 
 
-def _embedded_env(data_dir: Path) -> dict[str, str]:
+def _embedded_env(data_dir: Path, admin_key: str) -> dict[str, str]:
     """The environment of a `posemetry serve` on its embedded defaults in `data_dir`, whatever this shell sets."""
     env = {key: value for key, value in os.environ.items() if not key.startswith("POSEMETRY_")}
     env["POSEMETRY_DATA_DIR"] = str(data_dir)
+    env["POSEMETRY_ADMIN_KEY"] = admin_key
     return env
 
 
@@ -125,6 +129,7 @@ class Server:
     port: int
     workers: int
     api_processes: int = 1
+    admin_key: str = field(default_factory=lambda: secrets.token_hex(32))
     process: subprocess.Popen[bytes] | None = None
     log_path: Path | None = None
 
@@ -135,7 +140,11 @@ class Server:
         command += ["--workers", str(self.workers), "--api-processes", str(self.api_processes)]
         command += ["--data-dir", str(self.data_dir), "--log-level", "warning"]
         self.process = subprocess.Popen(
-            command, env=_embedded_env(self.data_dir), stdout=log, stderr=subprocess.STDOUT, start_new_session=True
+            command,
+            env=_embedded_env(self.data_dir, self.admin_key),
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
         )
         log.close()
         deadline = time.monotonic() + SERVER_START_TIMEOUT_S
@@ -170,12 +179,19 @@ class Server:
 
 
 def request(
-    port: int, method: str, path: str, body: bytes | None = None, connection: http.client.HTTPConnection | None = None
+    port: int,
+    method: str,
+    path: str,
+    body: bytes | None = None,
+    connection: http.client.HTTPConnection | None = None,
+    token: str | None = None,
 ) -> tuple[int, bytes]:
     own = connection is None
     conn = connection or http.client.HTTPConnection("127.0.0.1", port, timeout=30)
     try:
         headers = {"content-type": "application/json"} if body is not None else {}
+        if token is not None:
+            headers["authorization"] = f"Bearer {token}"
         conn.request(method, path, body=body, headers=headers)
         response = conn.getresponse()
         return response.status, response.read()
@@ -208,6 +224,7 @@ class IngestResult:
 
 def _client(
     port: int,
+    token: str,
     frames: Sequence[tuple[str, bytes]],
     offset: int,
     stop_at: float,
@@ -226,7 +243,8 @@ def _client(
             body = template.replace(b'"timestamp": ""', f'"timestamp": "{datetime.now(UTC).isoformat()}"'.encode(), 1)
             started = time.perf_counter()
             try:
-                status, content = request(port, "POST", f"/v1/cameras/{camera_id}/keypoints", body, connection)
+                path = f"/v1/cameras/{camera_id}/keypoints"
+                status, content = request(port, "POST", path, body, connection, token)
             except (OSError, http.client.HTTPException) as exc:
                 latencies.append(time.perf_counter() - started)
                 errors.append(f"{type(exc).__name__}: {exc}")
@@ -270,10 +288,21 @@ def run_ingest(
         try:
             for camera in range(cameras):
                 status, content = request(
-                    server.port, "PUT", f"/v1/cameras/bench-{camera}", json.dumps(camera_body).encode()
+                    server.port,
+                    "PUT",
+                    f"/v1/cameras/bench-{camera}",
+                    json.dumps(camera_body).encode(),
+                    token=server.admin_key,
                 )
                 if status not in (200, 201):
                     raise RuntimeError(f"PUT camera answered {status}: {content[:300]!r}")
+            key_body = {"name": "bench ingest", "cameras": [f"bench-{c}" for c in range(cameras)]}
+            status, content = request(
+                server.port, "POST", "/v1/keys", json.dumps(key_body).encode(), token=server.admin_key
+            )
+            if status != 201:
+                raise RuntimeError(f"POST /v1/keys answered {status}: {content[:300]!r}")
+            token = json.loads(content)["token"]
             result = None
             for phase, duration in (("warm-up", warmup_s), ("measured", seconds)):
                 if duration <= 0:
@@ -289,6 +318,7 @@ def run_ingest(
                         target=_client,
                         args=(
                             server.port,
+                            token,
                             frames,
                             i * len(frames) // concurrency,
                             stop_at,
@@ -307,7 +337,9 @@ def run_ingest(
                 result = IngestResult(elapsed, sum(accepted), len(errors), latencies, errors[:5])
             assert result is not None
             result.calibrated_cameras = sum(
-                json.loads(request(server.port, "GET", f"/v1/cameras/bench-{c}/calibration")[1]).get("status")
+                json.loads(request(server.port, "GET", f"/v1/cameras/bench-{c}/calibration", token=token)[1]).get(
+                    "status"
+                )
                 == "calibrated"
                 for c in range(cameras)
             )

@@ -7,6 +7,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, Query, Response, status
 
+from service.auth.dependencies import PrincipalDep
 from service.schemas import METRES_PER_FOOT, CameraList, CameraOut, CameraSettings
 from service.store import repository
 from service.store.models import Camera
@@ -105,11 +106,12 @@ def put_camera(
 @router.get("", response_model=CameraList)
 def list_cameras(
     session: ReadSessionDep,
+    caller: PrincipalDep,
     limit: Annotated[int, Query(ge=1, le=1000, description="Cameras per page.")] = 100,
     after: Annotated[str | None, Query(max_length=128, description="Last id of the previous page.")] = None,
 ) -> CameraList:
-    """Cameras in id order, a page at a time."""
-    cameras = repository.list_cameras(session, limit=limit, after=after)
+    """Cameras in id order, a page at a time; a key limited to some cameras sees only those."""
+    cameras = repository.list_cameras(session, limit=limit, after=after, only=caller.cameras)
     next_after = cameras[-1].id if len(cameras) == limit else None
     return CameraList(items=[camera_out(c) for c in cameras], next_after=next_after)
 

@@ -2,6 +2,9 @@
 
 Subscribing checks the URL against the SSRF policy (service.webhooks.addresses) and answers 422 with the reason;
 the delivery worker checks again on every connection.
+
+Only admin keys manage subscriptions: a subscription sends camera data to an outside URL (all cameras' unless it
+filters them), which is an operator's decision, not a camera system's.
 """
 
 from __future__ import annotations
@@ -11,9 +14,10 @@ import uuid
 from datetime import datetime
 from typing import Annotated
 
-from fastapi import APIRouter, Query, Response, status
+from fastapi import APIRouter, Depends, Query, Response, status
 from sqlalchemy.orm import Session
 
+from service.auth.dependencies import require_admin
 from service.dispatch import UNAVAILABLE_ERRORS, Dispatcher
 from service.problems import ProblemError
 from service.settings import Settings
@@ -39,7 +43,7 @@ from service.webhooks.signing import generate_secret
 
 from .common import DispatcherDep, ReadSessionDep, SessionDep, SettingsDep, queue_unavailable
 
-router = APIRouter(prefix="/v1/webhooks", tags=["webhooks"])
+router = APIRouter(prefix="/v1/webhooks", tags=["webhooks"], dependencies=[Depends(require_admin)])
 
 
 def webhook_url(subscription_id: uuid.UUID) -> str:

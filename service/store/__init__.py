@@ -5,10 +5,11 @@ callers need to open a database.
 """
 
 from .db import make_engine, make_session_factory, normalise_url
-from .models import Base, CalibrationVersion, Camera, Frame, FrameImage, Observation, ViolationEvent
+from .models import ApiKey, Base, CalibrationVersion, Camera, Frame, FrameImage, Observation, ViolationEvent
 from .webhook_models import ViolationCooldown, WebhookAttempt, WebhookDelivery, WebhookEvent, WebhookSubscription
 
 __all__ = [
+    "ApiKey",
     "Base",
     "CalibrationVersion",
     "Camera",

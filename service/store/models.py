@@ -18,6 +18,8 @@ Design choices that the rest of the service relies on:
   to keeping images (`cameras.keep_images`); the people found are observations like any posted keypoints.
 - Violation events carry `epoch_s`, whole seconds since the Unix epoch, so per-minute and per-hour counts are
   integer arithmetic that SQLite and PostgreSQL evaluate identically.
+- API keys store only a digest of their token (service.auth.tokens); a revoked key keeps its row, so listings
+  and audits still show who had access, and when.
 """
 
 from __future__ import annotations
@@ -58,6 +60,10 @@ DEFAULT_DISTANCE_THRESHOLD_M = 1.8288
 CAMERA_ID_MAX_LENGTH = 128
 CLIENT_FRAME_ID_MAX_LENGTH = 128
 REASON_MAX_LENGTH = 200
+API_KEY_ID_LENGTH = 12
+API_KEY_NAME_MAX_LENGTH = 100
+API_KEY_DIGEST_LENGTH = 64
+API_KEY_CREATED_BY_MAX_LENGTH = 120
 
 
 # frames.error is TEXT; a cap keeps one bad frame from storing a novel, but leaves room for the fix to be named.
@@ -377,3 +383,25 @@ class ViolationEvent(Base):
         Index("ix_violation_events_camera_id_epoch_s", "camera_id", "epoch_s"),
         CheckConstraint("person_i < person_j", name="pair_ordered"),
     )
+
+
+class ApiKey(Base):
+    """An API key: its token's digest (never the token), what it may do, and its life cycle."""
+
+    __tablename__ = "api_keys"
+
+    id: Mapped[str] = mapped_column(String(API_KEY_ID_LENGTH), primary_key=True)
+    name: Mapped[str] = mapped_column(String(API_KEY_NAME_MAX_LENGTH))
+    token_digest: Mapped[str] = mapped_column(String(API_KEY_DIGEST_LENGTH))
+    admin: Mapped[bool] = mapped_column(Boolean, default=False)
+    # The camera ids the key is limited to (a JSON list); NULL: every camera. Admin keys are never limited.
+    cameras: Mapped[list[str] | None] = mapped_column(JSON(none_as_null=True))
+    # Who issued it: another key's id, `POSEMETRY_ADMIN_KEY`, `posemetry keys` or `posemetry serve`.
+    created_by: Mapped[str] = mapped_column(String(API_KEY_CREATED_BY_MAX_LENGTH))
+    created_at: Mapped[datetime] = mapped_column(default=utc_now)
+    # Written at most about once a minute per key and API process (service.auth), not on every request.
+    last_used_at: Mapped[datetime | None]
+    expires_at: Mapped[datetime | None]
+    revoked_at: Mapped[datetime | None]
+
+    __table_args__ = (CheckConstraint("NOT admin OR cameras IS NULL", name="admin_unscoped"),)

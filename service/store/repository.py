@@ -12,7 +12,7 @@ import hashlib
 import math
 import random
 import uuid
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from contextlib import nullcontext
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -337,11 +337,18 @@ def get_camera(session: Session, camera_id: str) -> Camera | None:
     return session.get(Camera, camera_id)
 
 
-def list_cameras(session: Session, *, limit: int = 100, after: str | None = None) -> list[Camera]:
-    """Cameras in id order, a page at a time: pass the last id of a page as `after` for the next one."""
+def list_cameras(
+    session: Session, *, limit: int = 100, after: str | None = None, only: Collection[str] | None = None
+) -> list[Camera]:
+    """Cameras in id order, a page at a time: pass the last id of a page as `after` for the next one.
+
+    `only` restricts the listing to those ids (a camera-scoped API key); None lists every camera.
+    """
     stmt = select(Camera).order_by(Camera.id).limit(limit)
     if after is not None:
         stmt = stmt.where(Camera.id > after)
+    if only is not None:
+        stmt = stmt.where(Camera.id.in_(sorted(only)))
     return list(session.scalars(stmt))
 
 

@@ -2,11 +2,15 @@
 
 Tests run on SQLite by default; a test parametrised with `backend` ("sqlite", "postgresql") also runs on the
 throwaway PostgreSQL cluster of the store tests (skipped without PostgreSQL binaries).
+
+Every route but the health checks needs an API key: `client` sends the admin key configured in `settings`
+(ADMIN_KEY); `anonymous` sends none, and `client_for(token)` gives a client that sends another key.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
@@ -24,6 +28,7 @@ from tests.store.conftest import migrated_url, postgres_cluster, postgres_templa
 __all__ = ["migrated_url", "postgres_cluster", "postgres_template", "sqlite_template"]
 
 CAMERA = "cam-1"
+ADMIN_KEY = "test-admin-key-0123456789abcdefghijklmnopqrstuvwxyz"
 WIDTH_PX, HEIGHT_PX = 1920, 1080
 MIN_PEOPLE = 5
 
@@ -48,6 +53,7 @@ def settings(migrated_url: str, tmp_path: Path) -> Settings:
         max_body_bytes=200_000,
         calibration_min_people=MIN_PEOPLE,
         calibration_growth_factor=2.0,
+        admin_key=ADMIN_KEY,
     )
 
 
@@ -56,8 +62,20 @@ def app(settings: Settings, dispatcher: RecordingDispatcher) -> FastAPI:
     return create_app(settings, dispatcher=dispatcher)
 
 
+def bearer(token: str) -> dict[str, str]:
+    return {"Authorization": f"Bearer {token}"}
+
+
 @pytest.fixture
 def client(app: FastAPI) -> Iterator[TestClient]:
+    """The app as an admin sees it (the configured admin key on every request)."""
+    with TestClient(app, headers=bearer(ADMIN_KEY)) as test_client:
+        yield test_client
+
+
+@pytest.fixture
+def anonymous(app: FastAPI) -> Iterator[TestClient]:
+    """The app as a caller without a key sees it."""
     with TestClient(app) as test_client:
         yield test_client
 
@@ -104,3 +122,10 @@ def assert_problem(response: httpx.Response, status: int, *fragments: str) -> di
     for fragment in fragments:
         assert fragment.lower() in body["detail"].lower(), body["detail"]
     return body
+
+
+@pytest.fixture
+def client_for(app: FastAPI) -> Iterator[Callable[[str], TestClient]]:
+    """Clients of the same app that send the given key (closed at the end of the test)."""
+    with ExitStack() as stack:
+        yield lambda token: stack.enter_context(TestClient(app, headers=bearer(token)))

@@ -19,7 +19,7 @@ from service.store import WebhookEvent, repository
 from service.store import webhooks as store
 from service.webhooks.signing import generate_secret
 
-from .conftest import HEIGHT_PX, MIN_PEOPLE, WIDTH_PX, assert_problem
+from .conftest import ADMIN_KEY, HEIGHT_PX, MIN_PEOPLE, WIDTH_PX, assert_problem, bearer
 from .test_calibration import solved
 
 LOOPBACK_HOOK = "http://127.0.0.1:9/hook"
@@ -34,6 +34,7 @@ def settings(migrated_url: str, tmp_path: Path) -> Settings:
         data_dir=tmp_path,
         calibration_min_people=MIN_PEOPLE,
         webhook_allowed_networks=["127.0.0.0/8"],
+        admin_key=ADMIN_KEY,
     )
 
 
@@ -136,8 +137,10 @@ def test_non_json_and_bad_ids_are_4xx(client: TestClient) -> None:
     ],
 )
 def test_subscribing_to_a_refused_address_is_422(migrated_url: str, tmp_path: Path, url: str, fragment: str) -> None:
-    strict = create_app(Settings(database_url=migrated_url, data_dir=tmp_path), dispatcher=RecordingDispatcher())
-    with TestClient(strict) as client:
+    strict = create_app(
+        Settings(database_url=migrated_url, data_dir=tmp_path, admin_key=ADMIN_KEY), dispatcher=RecordingDispatcher()
+    )
+    with TestClient(strict, headers=bearer(ADMIN_KEY)) as client:
         problem = assert_problem(client.post("/v1/webhooks", json={"url": url}), 422, fragment)
         assert problem["type"].endswith("/webhook-url-refused") and problem["errors"][0]["field"] == "body.url"
         assert client.get("/v1/webhooks").json()["items"] == []

@@ -14,7 +14,7 @@ from service.store import make_engine
 from service.store.migrate import current_revision, head_revision, schema_differences, upgrade
 from service.store.models import Base
 
-TABLES = {"cameras", "frames", "frame_images", "observations", "calibrations", "violation_events"}
+TABLES = {"cameras", "frames", "frame_images", "observations", "calibrations", "violation_events", "api_keys"}
 WEBHOOK_TABLES = {
     "webhook_subscriptions",
     "webhook_events",

@@ -25,6 +25,7 @@ from service.keypoints import person_from_centres
 from service.queue import QUEUES, EmbeddedRedis, RedisDispatcher, connect
 from service.settings import get_settings
 from service.store.repository import add_keypoint_frame, upsert_camera
+from tests.api.conftest import ADMIN_KEY
 from tests.shared import model_dir_path
 from tests.store import conftest as store_fixtures
 from workers import jobs
@@ -73,6 +74,7 @@ def environment(
         "POSEMETRY_REDIS_URL": redis_server.url,
         "POSEMETRY_CALIBRATION_MIN_PEOPLE": "30",
         "POSEMETRY_MODEL_DIR": str(model_dir_path()),
+        "POSEMETRY_ADMIN_KEY": ADMIN_KEY,
     }
     for name, value in env.items():
         monkeypatch.setenv(name, value)

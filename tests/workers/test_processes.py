@@ -1,9 +1,14 @@
-"""Separate processes, as deployed: a `posemetry worker` subprocess, and `posemetry serve` driven over HTTP."""
+"""Separate processes, as deployed: a `posemetry worker` subprocess, and `posemetry serve` driven over HTTP.
+
+The serve tests configure an admin key (POSEMETRY_ADMIN_KEY) and send it, except the one about the first admin
+key that serve generates and prints when none is configured.
+"""
 
 from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -29,6 +34,8 @@ from tests.workers.conftest import IMAGE_SIZE, PEOPLE_PER_FRAME, simulated_camer
 
 REPO = Path(__file__).resolve().parents[2]
 DEADLINE_S = 60.0
+ADMIN_KEY = "serve-test-admin-key-0123456789abcdefghijklmnop"
+TOKEN = re.compile(r"pm_[0-9a-f]{12}_[0-9A-Za-z]{43}")
 
 
 def _wait_for(condition: Callable[[], bool], what: str, process: subprocess.Popen[bytes]) -> None:
@@ -86,9 +93,18 @@ def _free_port() -> int:
         return int(sock.getsockname()[1])
 
 
-def _http(method: str, url: str, body: Any = None) -> tuple[int, Any]:
+def _serve_env(**settings: str) -> dict[str, str]:
+    """This environment without any POSEMETRY_* (embedded mode), plus `settings` and the test's admin key."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("POSEMETRY_")}
+    env["POSEMETRY_ADMIN_KEY"] = ADMIN_KEY
+    env.update({f"POSEMETRY_{name.upper()}": value for name, value in settings.items()})
+    return env
+
+
+def _http(method: str, url: str, body: Any = None, token: str = ADMIN_KEY) -> tuple[int, Any]:
     data = None if body is None else json.dumps(body).encode()
-    request = urllib.request.Request(url, data=data, method=method, headers={"content-type": "application/json"})
+    headers = {"content-type": "application/json", "authorization": f"Bearer {token}"}
+    request = urllib.request.Request(url, data=data, method=method, headers=headers)
     try:
         with urllib.request.urlopen(request, timeout=10) as response:
             return response.status, json.loads(response.read() or b"null")
@@ -100,8 +116,7 @@ def test_serve_runs_everything_and_shuts_down_cleanly(
     tmp_path: Path, sessions: sessionmaker[Session], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     # Embedded mode: no Redis or database configured, everything lives in the data directory.
-    env = {k: v for k, v in os.environ.items() if not k.startswith("POSEMETRY_")}
-    env["POSEMETRY_CALIBRATION_MIN_PEOPLE"] = "30"
+    env = _serve_env(calibration_min_people="30")
     data_dir = tmp_path / "serve"
     port = _free_port()
     base = f"http://127.0.0.1:{port}"
@@ -178,8 +193,7 @@ def test_serve_runs_everything_and_shuts_down_cleanly(
 def test_serve_finds_people_in_posted_images(tmp_path: Path) -> None:
     """Image frames end to end: JPEGs over HTTP, real ONNX pose in a worker, detections and an overlay back."""
     frames = sorted((require_dir(TOWN_CENTRE, "Town Centre data") / "frames").glob("clip_*.jpg"))[:3]
-    env = {k: v for k, v in os.environ.items() if not k.startswith("POSEMETRY_")}
-    env["POSEMETRY_MODEL_DIR"] = str(require_dir(model_dir_path(), "pose model"))
+    env = _serve_env(model_dir=str(require_dir(model_dir_path(), "pose model")))
     port = _free_port()
     base = f"http://127.0.0.1:{port}"
     serve = subprocess.Popen(
@@ -197,7 +211,7 @@ def test_serve_finds_people_in_posted_images(tmp_path: Path) -> None:
                 f"{base}/v1/cameras/street/frames?frame_id=clip-{index}",
                 data=path.read_bytes(),
                 method="POST",
-                headers={"content-type": "image/jpeg"},
+                headers={"content-type": "image/jpeg", "authorization": f"Bearer {ADMIN_KEY}"},
             )
             with urllib.request.urlopen(request, timeout=10) as response:
                 assert response.status == 202
@@ -212,11 +226,55 @@ def test_serve_finds_people_in_posted_images(tmp_path: Path) -> None:
             assert frame["source"] == "image" and frame["pose_model"].startswith("rtmdet-nano")
             assert frame["people"] == len(frame["detections"]) >= 8
             assert sum(d["usable"] for d in frame["detections"]) >= 4
-            with urllib.request.urlopen(f"{base}{frame['links']['overlay']}", timeout=30) as response:
+            overlay = urllib.request.Request(
+                f"{base}{frame['links']['overlay']}", headers={"authorization": f"Bearer {ADMIN_KEY}"}
+            )
+            with urllib.request.urlopen(overlay, timeout=30) as response:
                 assert response.headers["content-type"] == "image/png"
                 assert response.read().startswith(b"\x89PNG")
     finally:
         assert _stop(serve) == 0
+
+
+def test_serve_prints_a_first_admin_key_once(tmp_path: Path) -> None:
+    """No POSEMETRY_ADMIN_KEY: the first start makes an admin key and prints it; later starts print none."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("POSEMETRY_")}
+    data_dir = tmp_path / "serve"
+    port = _free_port()
+    base = f"http://127.0.0.1:{port}"
+    command = [sys.executable, "-m", "service.cli", "serve", "--data-dir", str(data_dir), "--port", str(port)]
+    command += ["--workers", "1"]
+    outputs = []
+    for start in range(2):
+        log_path = tmp_path / f"serve-{start}.log"
+        with log_path.open("wb") as log:
+            serve = subprocess.Popen(command, cwd=REPO, env=env, stdout=log, stderr=log)
+        try:
+            _wait_for(lambda: _ready(base), "the API to be ready", serve)
+            assert _http("GET", f"{base}/v1/cameras", token="")[0] == 401
+            output = log_path.read_text()
+            outputs.append(output)
+            if start == 0:
+                tokens = TOKEN.findall(output)
+                assert len(tokens) == 1, output
+                (first_admin,) = tokens
+                assert "First admin API key" in output and "shown this once" in output
+                status, created = _http("POST", f"{base}/v1/keys", {"name": "lobby", "cameras": ["lobby"]}, first_admin)
+                assert status == 201, created
+                scoped = created["token"]
+            # The first admin key and the key it made work on every start.
+            status, listed = _http("GET", f"{base}/v1/keys", token=first_admin)
+            assert status == 200 and {k["name"] for k in listed["items"]} == {
+                "first admin key (posemetry serve)",
+                "lobby",
+            }
+            assert _http("GET", f"{base}/v1/cameras", token=scoped)[0] == 200
+            assert _http("GET", f"{base}/v1/keys", token=scoped)[0] == 403
+        finally:
+            assert _stop(serve) == 0
+    assert TOKEN.search(outputs[1]) is None and "First admin API key" not in outputs[1]
+    for database_file in data_dir.glob("posemetry.sqlite3*"):  # the database and its WAL: only a hash is stored
+        assert first_admin.encode() not in database_file.read_bytes()
 
 
 def _ready(base: str) -> bool:

@@ -36,6 +36,7 @@ from service.store import webhooks as store
 from service.store.repository import add_keypoint_frame, delete_camera, get_frame
 from service.webhooks.delivery import RESPONSE_LOG_BYTES
 from service.webhooks.events import first_attempts
+from tests.api.conftest import ADMIN_KEY, bearer
 from tests.webhooks.receiver import Answer, Received, Receiver
 from tests.workers.conftest import IMAGE_SIZE, Camera, run_jobs, simulated_camera, store_frames
 from workers.main import requeue_deliveries, requeue_pending
@@ -75,7 +76,7 @@ def receiver() -> Iterator[Receiver]:
 
 @pytest.fixture
 def api(hooks: dict[str, str], dispatcher: RedisDispatcher) -> Iterator[TestClient]:
-    with TestClient(create_app(get_settings(), dispatcher=dispatcher)) as client:
+    with TestClient(create_app(get_settings(), dispatcher=dispatcher), headers=bearer(ADMIN_KEY)) as client:
         yield client
 
 

@@ -1,0 +1,88 @@
+"""Bodies of the key-management routes (`/v1/keys`)."""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from typing import Literal
+
+from pydantic import AwareDatetime, BaseModel, Field, model_validator
+
+from service.schemas import CameraId, StrictModel
+from service.store.models import API_KEY_NAME_MAX_LENGTH
+
+from .tokens import TOKEN_FORMAT
+
+MAX_SCOPED_CAMERAS = 1000
+
+
+class KeyCreate(StrictModel):
+    """A new key: a name saying who or what holds it, and what it may do."""
+
+    name: str = Field(
+        min_length=1,
+        max_length=API_KEY_NAME_MAX_LENGTH,
+        description="Who or what holds the key (a camera system, a dashboard, a person).",
+        examples=["lobby camera gateway"],
+    )
+    admin: bool = Field(default=False, description="Admin keys manage keys; they are never limited to cameras.")
+    cameras: list[CameraId] | None = Field(
+        default=None,
+        min_length=1,
+        max_length=MAX_SCOPED_CAMERAS,
+        description="Limit the key to these camera ids (they need not exist yet; the key may create them). Such a "
+        "key lists only these cameras and gets 403 for any other. Null: every camera.",
+        examples=[["lobby-1", "lobby-2"]],
+    )
+    expires_at: AwareDatetime | None = Field(
+        default=None, description="When the key stops working (RFC 3339 with zone). Null: never."
+    )
+
+    @model_validator(mode="after")
+    def _consistent(self) -> KeyCreate:
+        if self.admin and self.cameras is not None:
+            raise ValueError("an admin key cannot be limited to cameras: leave `cameras` null, or `admin` false")
+        if self.expires_at is not None and self.expires_at <= datetime.now(UTC):
+            raise ValueError("`expires_at` must be in the future")
+        return self
+
+
+class KeyOut(BaseModel):
+    """A stored key as listed: everything but the token, which is shown once, when the key is created."""
+
+    id: str = Field(description="The key's id, also the part after `pm_` in its token.")
+    name: str
+    admin: bool
+    cameras: list[str] | None = Field(description="The cameras the key is limited to; null: every camera.")
+    state: Literal["active", "expired", "revoked"]
+    created_at: datetime
+    created_by: str = Field(description="The key id (or `POSEMETRY_ADMIN_KEY`, or a command) that issued it.")
+    last_used_at: datetime | None = Field(
+        description="When the key last authenticated a request, to about a minute (written at most once a minute)."
+    )
+    expires_at: datetime | None
+    revoked_at: datetime | None
+    url: str
+
+
+class KeyCreated(KeyOut):
+    token: str = Field(
+        description=f"The key itself ({TOKEN_FORMAT}), shown only in this response: only a hash of it is stored, "
+        "so it cannot be shown again. Send it as `Authorization: Bearer <token>`."
+    )
+
+
+class KeyList(BaseModel):
+    """One page of keys in id order; pass `next_after` as `after` for the next page (null: last page)."""
+
+    items: list[KeyOut]
+    next_after: str | None
+
+
+class CallerOut(BaseModel):
+    """The key this request was authenticated with."""
+
+    key_id: str | None = Field(description="Null for the admin key configured as POSEMETRY_ADMIN_KEY.")
+    name: str
+    admin: bool
+    cameras: list[str] | None = Field(description="The cameras the key is limited to; null: every camera.")
+    expires_at: datetime | None
