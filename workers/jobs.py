@@ -155,7 +155,7 @@ def detect_people(frame_id: str) -> str:
     analysed, or missing model files, fail this frame with the reason, not the worker.
     """
     from service.images import ImageError, decode
-    from service.keypoints import person_from_detection
+    from service.keypoints import people_from_detections
     from service.pose.model_files import ModelFilesError
     from service.pose.pipeline import load_pose_estimator
 
@@ -184,7 +184,7 @@ def detect_people(frame_id: str) -> str:
             record_detection_failure(session, frame_uuid, str(exc))
         return FAILED
     size = (camera.image_width_px, camera.image_height_px)
-    people = [person_from_detection(person, size) for person in found[: settings.max_people_per_frame]]
+    people = people_from_detections(found[: settings.max_people_per_frame], size)
     with _transaction(settings) as session:
         stored = record_detections(session, frame_uuid, people, pose_model=estimator.name)
     if stored is None:
