@@ -104,7 +104,7 @@ def summary_table(analysis: Analysis, out_dir: Path, total_s: float) -> Table:
     table.add_column()
     source = analysis.source
     frames = len(analysis.frames)
-    stride = f", every {source.stride}th" if source.stride > 1 else ""
+    stride = f", stride {source.stride}" if source.stride > 1 else ""
     skipped = f", {len(analysis.skipped)} skipped" if analysis.skipped else ""
     table.add_row("source", f"{source.path} ({source.kind}, {source.image_size_px[0]}x{source.image_size_px[1]})")
     table.add_row("frames", f"{frames} analysed{stride}{skipped}")
@@ -146,6 +146,7 @@ def summary_table(analysis: Analysis, out_dir: Path, total_s: float) -> Table:
             table.add_row(
                 "keypoint noise", f"{unc.noise_px:.1f} px (reprojection rms {cal.reprojection_rms_px:.1f} px)"
             )
+        table.add_row("placed", f"{analysis.people_placed} of {seen} people placed on the ground")
         threshold = analysis.options.threshold
         table.add_row(
             "violations",
