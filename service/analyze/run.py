@@ -51,17 +51,6 @@ class Observer(Protocol):
     def note(self, message: str) -> None: ...
 
 
-class SilentObserver:
-    def begin(self, stage: Stage, total: int | None) -> None:
-        pass
-
-    def advance(self, people: int = 0) -> None:
-        pass
-
-    def note(self, message: str) -> None:
-        pass
-
-
 @dataclass(frozen=True)
 class AnalyzedFrame:
     """A frame's people as the pose model found them."""
