@@ -19,6 +19,15 @@ below therefore keep points for measurement generously and admit evidence conser
 - Size: a segment shorter than `MIN_SEGMENT_PX` (8 px) carries more keypoint noise than direction.
 
 Centres posted explicitly (`shoulder`/`ankle`) have no scores; the border, upright and size rules still apply.
+
+One rule needs the whole frame: a top-down pipeline runs the pose model on each detection's crop, and two
+detections can yield the same pose, either because the detector boxed one person twice (a whole-body and a
+partial box) or because a crop around one person also holds a more salient neighbour and the single-person pose
+model reads the neighbour. The second pose is then a copy of the first: measured, it is a phantom person a few
+centimetres from the real one (a false violation in every such frame; seen on the Oxford Town Centre clip in
+most frames). `people_from_detections` therefore drops the points of a pose that repeats a more confident
+detection's pose (median distance between their keypoints under `DUPLICATE_POSE_FRACTION` of the box height):
+the detection is kept, with the reason, but is neither evidence nor placed.
 """
 
 from __future__ import annotations
@@ -27,6 +36,8 @@ import math
 from collections.abc import Sequence
 from dataclasses import replace
 from typing import TYPE_CHECKING
+
+import numpy as np
 
 from service.store.repository import PersonIn
 
@@ -40,6 +51,11 @@ MIN_SCORE = 0.3
 BORDER_FRACTION = 0.01
 MAX_TILT_DEG = 60.0
 MIN_SEGMENT_PX = 8.0
+# Two poses in one frame are the same person when their keypoints lie this close (median over the keypoints
+# confident in both, as a fraction of the taller box). The same person read from two crops differs by a few
+# pixels (~1-2 % of their height); two people pressed together differ by a shoulder width (~25 %).
+DUPLICATE_POSE_FRACTION = 0.05
+MIN_SHARED_KEYPOINTS = 4
 
 Point = tuple[float, float]
 
@@ -108,3 +124,38 @@ def person_from_centres(shoulder: Point | None, ankle: Point | None, image_size_
         ankle_px=ankle_px,
         unusable_reason=evidence_problem(shoulder_px, ankle_px, image_size_px),
     )
+
+
+def _same_pose(a: PersonIn, b: PersonIn) -> bool:
+    """Whether two detections' keypoints describe one pose (see the module docstring)."""
+    if a.keypoints is None or b.keypoints is None or a.box_px is None or b.box_px is None:
+        return False
+    ka, kb = np.asarray(a.keypoints, dtype=float), np.asarray(b.keypoints, dtype=float)
+    shared = (ka[:, 2] >= MIN_SCORE) & (kb[:, 2] >= MIN_SCORE)
+    if shared.sum() < MIN_SHARED_KEYPOINTS:
+        return False
+    gap_px = float(np.median(np.hypot(*(ka[shared, :2] - kb[shared, :2]).T)))
+    scale_px = max(a.box_px[3] - a.box_px[1], b.box_px[3] - b.box_px[1])
+    return gap_px < DUPLICATE_POSE_FRACTION * scale_px
+
+
+def people_from_detections(found: Sequence[DetectedPerson], image_size_px: tuple[int, int]) -> list[PersonIn]:
+    """A frame's people as the store's rows: each person's verdict, and repeated poses dropped (module docstring).
+
+    `found` is in the pose estimator's order, most confident detection first, so a pose is compared with the
+    ones before it and the more confident detection keeps it.
+    """
+    people = [person_from_detection(person, image_size_px) for person in found]
+    repeats: set[int] = set()
+    for j, person in enumerate(people):
+        original = next((i for i in range(j) if i not in repeats and _same_pose(people[i], person)), None)
+        if original is None:
+            continue
+        repeats.add(j)
+        people[j] = replace(
+            person,
+            shoulder_px=None,
+            ankle_px=None,
+            unusable_reason=f"same pose as person {original} (a repeated detection, or a neighbour's pose)",
+        )
+    return people

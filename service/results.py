@@ -110,19 +110,37 @@ def compute_frame_result(
     image_size_px: tuple[int, int],
     distance_threshold_m: float,
 ) -> FrameComputation:
+    """A frame's result with a stored calibration version (see `measure_people`)."""
+    return measure_people(
+        people,
+        calibration_from_version(calibration, image_size_px),
+        distance_threshold_m=distance_threshold_m,
+        calibration_version=calibration.version,
+        noise_px=calibration.noise_px or 0.0,
+    )
+
+
+def measure_people(
+    people: Sequence[StoredCentres | PersonIn],
+    cal: Calibration,
+    *,
+    distance_threshold_m: float,
+    calibration_version: int = 0,
+    noise_px: float | None = None,
+) -> FrameComputation:
     """Place every person (ankles when seen, else shoulders), measure all pairs i < j, and flag violations.
 
     A pair is a violation when its distance is strictly below `distance_threshold_m`; pairs involving a person
     who could not be placed (no shoulder and no ankle, or a ray missing the ground) have null distances and are
-    never violations.
+    never violations. `noise_px` is the keypoint noise for the distance uncertainties (default: the one the
+    calibration estimated).
     """
-    cal = calibration_from_version(calibration, image_size_px)
     points = [_points(person) for person in people]
     tops = np.array([s if s is not None else _NAN_POINT for s, _ in points], dtype=float).reshape(-1, 2)
     bottoms = np.array([a if a is not None else _NAN_POINT for _, a in points], dtype=float).reshape(-1, 2)
     n = len(points)
     if n:
-        m = measure(cal, tops, bottoms, noise_px=calibration.noise_px or 0.0)
+        m = measure(cal, tops, bottoms, noise_px=noise_px)
         positions, distances, stds = m.points_bottom, m.distances_m, m.distance_std_m
     else:
         positions, distances, stds = np.zeros((0, 3)), np.zeros((0, 0)), np.zeros((0, 0))
@@ -159,7 +177,7 @@ def compute_frame_result(
     ]
     result = FrameResult.model_validate(
         {
-            "calibration_version": calibration.version,
+            "calibration_version": calibration_version,
             "distance_threshold_m": distance_threshold_m,
             "people": placed_people,
             "pairs": pairs,

@@ -167,7 +167,7 @@ def detect_people(frame_id: str) -> str:
     analysed, or missing model files, fail this frame with the reason, not the worker.
     """
     from service.images import ImageError, decode
-    from service.keypoints import person_from_detection
+    from service.keypoints import people_from_detections
     from service.pose.model_files import ModelFilesError
     from service.pose.pipeline import load_pose_estimator
 
@@ -196,7 +196,7 @@ def detect_people(frame_id: str) -> str:
             record_detection_failure(session, frame_uuid, str(exc))
         return FAILED
     size = (camera.image_width_px, camera.image_height_px)
-    people = [person_from_detection(person, size) for person in found[: settings.max_people_per_frame]]
+    people = people_from_detections(found[: settings.max_people_per_frame], size)
     with _transaction(settings) as session:
         stored = record_detections(session, frame_uuid, people, pose_model=estimator.name)
     if stored is None:
@@ -303,8 +303,7 @@ def calibrate_camera(camera_id: str, forced: bool = False) -> str:
 
 
 def _solve(settings: Settings, dispatcher: RedisDispatcher, camera_id: str, *, forced: bool) -> str:
-    from service.geometry import CalibrationError, calibrate
-    from service.geometry.evidence import collapse_repeats, repeat_radius_px
+    from service.geometry.evidence import solve_evidence
 
     with read_session_factory(settings)() as session:
         camera = session.get(Camera, camera_id)
@@ -322,28 +321,23 @@ def _solve(settings: Settings, dispatcher: RedisDispatcher, camera_id: str, *, f
         height_m, equal_focal, known_focal_px = camera.person_height_m, camera.equal_focal, camera.known_focal_px
 
     started = time.perf_counter()
-    # Still people and static false detections (a mannequin) count once: see service.geometry.evidence.
-    keep = collapse_repeats(sample.tops_px, sample.bottoms_px, repeat_radius_px(image_size))
-    people_used = len(keep)
-    try:
-        solution = calibrate(
-            sample.tops_px[keep],
-            sample.bottoms_px[keep],
-            image_size,
-            height_m,
-            equal_focal=equal_focal,
-            focal_px=known_focal_px,
-        )
+    # The sample is already capped and balanced by the store; repeats (still people, a mannequin) count once.
+    solve = solve_evidence(
+        sample.tops_px, sample.bottoms_px, image_size, height_m, equal_focal=equal_focal, focal_px=known_focal_px
+    )
+    people_used = solve.people_used
+    duration_s = time.perf_counter() - started
+    if solve.calibration is not None:
         values = CalibrationValues.from_solution(
-            solution, people_used=people_used, evidence_count=evidence_count, duration_s=time.perf_counter() - started
+            solve.calibration, people_used=people_used, evidence_count=evidence_count, duration_s=duration_s
         )
-    except CalibrationError as exc:
+    else:
         values = CalibrationValues.failure(
-            clip_reason(str(exc)),
+            clip_reason(solve.error or "no camera"),
             person_height_m=height_m,
             people_used=people_used,
             evidence_count=evidence_count,
-            duration_s=time.perf_counter() - started,
+            duration_s=duration_s,
         )
 
     try:

@@ -8,12 +8,22 @@ drags the solution (seen on the Oxford Town Centre clip: one mannequin in 82 fra
 ground normal by 1.7 degrees). Collapsing repeats keeps one observation per place and pose: anything whose
 shoulder and ankle both lie within `radius_px` of an observation already kept is a repeat. Walking people move
 several pixels between frames, so their observations survive; still ones collapse to one.
+
+`solve_evidence` is the one path from pooled evidence to a camera, shared by the calibration worker and
+`posemetry analyze`: collapse repeats, optionally cap with a spatially balanced sample, calibrate.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.spatial import cKDTree
+
+from .calibrate import calibrate
+from .calibration import Calibration
+from .errors import CalibrationError
+from .priors import DEFAULT_HEIGHT_M
 
 # Pose-model jitter on a still person is 1-3 px at 1080p; this is comfortably above it as a share of the image.
 DEFAULT_RADIUS_FRACTION = 0.002
@@ -48,3 +58,115 @@ def collapse_repeats(tops_px: np.ndarray, bottoms_px: np.ndarray, radius_px: flo
         keep[finite_index[local]] = True
         suppressed[others] = True
     return np.flatnonzero(keep)
+
+
+# The sampling grid over the image, by ankle centre: the store samples on the same 8 x 8 cells
+# (service.store.models.GRID_COLS/ROWS), so a solve in the workers and one in `posemetry analyze` see evidence
+# spread the same way.
+SAMPLE_GRID = (8, 8)
+
+
+def balanced_sample(
+    bottoms_px: np.ndarray,
+    image_size_px: tuple[float, float],
+    cap: int,
+    *,
+    seed: int = 0,
+    grid: tuple[int, int] = SAMPLE_GRID,
+) -> np.ndarray:
+    """Indices (ascending) of at most `cap` observations spread as evenly over the image grid as the data allow.
+
+    The in-memory twin of the store's `sample_evidence`: every cell (by ankle centre) contributes equally and
+    cells with fewer people than their share give the remainder to the others, so a solve stays fast on a long
+    video and is not dominated by the one spot where people crowd or linger. Random within a cell, reproducible
+    for a seed. Everything is kept when there are no more than `cap` observations.
+    """
+    points = np.asarray(bottoms_px, dtype=float).reshape(-1, 2)
+    n = len(points)
+    if cap < 1:
+        raise ValueError(f"cap must be positive, got {cap}")
+    if n <= cap:
+        return np.arange(n)
+    cols, rows = grid
+    width, height = float(image_size_px[0]), float(image_size_px[1])
+    finite = np.all(np.isfinite(points), axis=1)
+    col = np.clip(np.floor(np.where(finite, points[:, 0], 0.0) / width * cols), 0, cols - 1).astype(int)
+    row = np.clip(np.floor(np.where(finite, points[:, 1], 0.0) / height * rows), 0, rows - 1).astype(int)
+    cell = row * cols + col
+    rng = np.random.default_rng(seed)
+    # Rank of each observation within its cell, in a random order: taking everything of rank < level from every
+    # cell is the water-filling; the last level is filled at random across cells.
+    order = rng.permutation(n)
+    by_cell = order[np.argsort(cell[order], kind="stable")]
+    starts = np.searchsorted(cell[by_cell], np.arange(rows * cols))
+    rank = np.empty(n, dtype=int)
+    rank[by_cell] = np.arange(n) - starts[cell[by_cell]]
+    counts = np.bincount(cell, minlength=rows * cols)
+    level = 0
+    while np.minimum(counts, level + 1).sum() <= cap:
+        level += 1
+    chosen = np.flatnonzero(rank < level)
+    remainder = np.flatnonzero(rank == level)
+    extra = rng.choice(remainder, size=cap - len(chosen), replace=False)
+    return np.sort(np.concatenate([chosen, extra]))
+
+
+@dataclass(frozen=True)
+class EvidenceSolve:
+    """What solving on a body of evidence produced: the camera, or why there is none."""
+
+    used: np.ndarray
+    """Indices into the evidence of the observations solved on (repeats collapsed, capped), ascending."""
+    calibration: Calibration | None
+    error: str | None = None
+
+    @property
+    def people_used(self) -> int:
+        return len(self.used)
+
+    def inlier_mask(self, evidence_count: int) -> np.ndarray:
+        """(evidence_count,) bool: the observations the solved camera kept as inliers."""
+        mask = np.zeros(evidence_count, dtype=bool)
+        if self.calibration is not None:
+            mask[self.used[np.asarray(self.calibration.inliers, dtype=bool)]] = True
+        return mask
+
+
+def solve_evidence(
+    tops_px: np.ndarray,
+    bottoms_px: np.ndarray,
+    image_size_px: tuple[float, float],
+    height_m: float = DEFAULT_HEIGHT_M,
+    *,
+    equal_focal: bool = True,
+    focal_px: float | None = None,
+    distortion: bool = False,
+    cap: int | None = None,
+    seed: int = 0,
+) -> EvidenceSolve:
+    """Calibrate once on usable observations pooled from many frames: the one path from evidence to a camera.
+
+    Repeats are collapsed first (see the module docstring), then, with `cap`, a spatially balanced sample of at
+    most `cap` is drawn from what remains (`balanced_sample`), and `calibrate` runs on it. A solve that cannot
+    produce a camera returns its reason instead of raising, because callers record failures with the evidence
+    they were given (the calibration worker keeps them in the history; `posemetry analyze` reports them).
+    """
+    tops = np.asarray(tops_px, dtype=float).reshape(-1, 2)
+    bottoms = np.asarray(bottoms_px, dtype=float).reshape(-1, 2)
+    used = collapse_repeats(tops, bottoms, repeat_radius_px(image_size_px))
+    if cap is not None:
+        used = used[balanced_sample(bottoms[used], image_size_px, cap, seed=seed)]
+    try:
+        solution = calibrate(
+            tops[used],
+            bottoms[used],
+            image_size_px,
+            height_m,
+            equal_focal=equal_focal,
+            focal_px=focal_px,
+            distortion=distortion,
+            seed=seed,
+        )
+    except CalibrationError as exc:
+        return EvidenceSolve(used, None, str(exc))
+    return EvidenceSolve(used, solution)

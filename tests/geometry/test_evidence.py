@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.geometry.evidence import collapse_repeats, repeat_radius_px
+from service.geometry.evidence import balanced_sample, collapse_repeats, repeat_radius_px, solve_evidence
+
+from .conftest import scene
 
 
 def test_a_static_detection_with_jitter_collapses_and_walkers_survive() -> None:
@@ -36,3 +38,41 @@ def test_non_finite_rows_and_empty_input() -> None:
     assert collapse_repeats(tops, bottoms, radius_px=2.0).tolist() == [0, 1]
     assert collapse_repeats(np.zeros((0, 2)), np.zeros((0, 2)), radius_px=2.0).tolist() == []
     assert repeat_radius_px((1920, 1080)) == np.float64(0.002 * np.hypot(1920, 1080))
+
+
+def test_balanced_sample_keeps_everything_under_the_cap_and_spreads_over_the_image_above_it() -> None:
+    rng = np.random.default_rng(1)
+    crowd = rng.normal((300.0, 900.0), 20.0, (900, 2))  # everyone lingering in one spot, bottom left
+    scattered = rng.uniform((0.0, 0.0), (1920.0, 1080.0), (100, 2))
+    bottoms = np.vstack([crowd, scattered])
+    assert balanced_sample(bottoms, (1920, 1080), cap=1000).tolist() == list(range(1000))
+    chosen = balanced_sample(bottoms, (1920, 1080), cap=200)
+    assert len(chosen) == 200 and len(set(chosen.tolist())) == 200 and np.all(np.diff(chosen) > 0)
+    # Water-filling: the scattered people (1-4 per cell) are nearly all kept, the crowd gets what they leave
+    # (a scattered person inside the crowd's cell competes with the crowd, hence not all 100).
+    assert np.sum(chosen >= 900) >= 95
+    assert np.array_equal(chosen, balanced_sample(bottoms, (1920, 1080), cap=200))  # reproducible
+    assert not np.array_equal(chosen, balanced_sample(bottoms, (1920, 1080), cap=200, seed=1))
+
+
+def test_solve_evidence_collapses_repeats_and_maps_inliers_back() -> None:
+    truth = scene(3, surveillance=True, n_people=60)
+    # A mannequin seen in 50 frames: the same segment, repeated, must count once among the people used.
+    tops = np.vstack([truth.tops_px, np.repeat(truth.tops_px[:1], 50, axis=0)])
+    bottoms = np.vstack([truth.bottoms_px, np.repeat(truth.bottoms_px[:1], 50, axis=0)])
+    solve = solve_evidence(tops, bottoms, truth.image_size, 1.7 * 0.78, equal_focal=True)
+    assert solve.calibration is not None and solve.error is None
+    assert solve.people_used == 60 and solve.used.tolist() == list(range(60))
+    assert abs(solve.calibration.fx / truth.fx - 1) < 0.1
+    mask = solve.inlier_mask(len(tops))
+    assert mask.sum() == solve.calibration.num_inliers >= 50 and not mask[60:].any()
+    capped = solve_evidence(tops, bottoms, truth.image_size, 1.7 * 0.78, cap=30)
+    assert capped.people_used == 30 and capped.calibration is not None
+
+
+def test_solve_evidence_reports_why_it_cannot_calibrate() -> None:
+    tops = np.array([[100.0, 100.0], [400.0, 120.0]])
+    bottoms = np.array([[100.0, 300.0], [400.0, 330.0]])
+    solve = solve_evidence(tops, bottoms, (640, 480))
+    assert solve.calibration is None and solve.error and solve.people_used == 2
+    assert not solve.inlier_mask(2).any()

@@ -12,8 +12,8 @@ from rq import Queue
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session, sessionmaker
 
-from service import geometry
 from service.dispatch import Dispatcher, DispatchUnavailableError
+from service.geometry import evidence
 from service.queue import (
     CALIBRATION_QUEUE,
     FRAMES_QUEUE,
@@ -158,7 +158,7 @@ def test_requests_during_a_solve_make_exactly_one_rerun(
 ) -> None:
     camera = simulated_camera(sessions)
     store_frames(sessions, camera, 8)
-    solve = geometry.calibrate
+    solve = evidence.calibrate
     outcomes: list[int] = []
 
     def solve_while_requests_arrive(*args, **kwargs):  # type: ignore[no-untyped-def]
@@ -168,7 +168,7 @@ def test_requests_during_a_solve_make_exactly_one_rerun(
             assert dispatcher.calibration_state(camera.camera_id) == "running"
         return solve(*args, **kwargs)
 
-    monkeypatch.setattr(geometry, "calibrate", solve_while_requests_arrive)
+    monkeypatch.setattr(evidence, "calibrate", solve_while_requests_arrive)  # where the workers' solve calls it
     dispatcher.request(CALIBRATION_QUEUE, camera.camera_id)
     run_jobs(connection)
     assert outcomes == [RequestOutcome.RERUN_SCHEDULED] * 3

@@ -1,0 +1,120 @@
+"""What a user can choose for one `posemetry analyze` run, checked once, recorded in calibration.json."""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any, Literal, get_args
+
+from service.geometry import DEFAULT_HEIGHT_M
+from service.pose.model_files import POSE_MODELS
+from service.schemas import METRES_PER_FOOT
+
+from .errors import AnalyzeError
+
+Unit = Literal["m", "ft"]
+ImageFormat = Literal["png", "jpg"]
+DEFAULT_THRESHOLD = "6ft"
+# Most usable people one calibration solves on (a spatially balanced sample when there are more), as the
+# service's POSEMETRY_CALIBRATION_SAMPLE_CAP: beyond a few thousand the answer stops changing, the time does not.
+DEFAULT_SAMPLE_CAP = 2000
+_THRESHOLD = re.compile(r"^\s*([0-9]*\.?[0-9]+(?:e[+-]?\d+)?)\s*(m|metres?|meters?|ft|feet|foot)\s*$", re.IGNORECASE)
+
+
+@dataclass(frozen=True)
+class Threshold:
+    """A distance threshold as the user wrote it, and in metres."""
+
+    value: float
+    unit: Unit
+
+    @property
+    def metres(self) -> float:
+        return self.value * METRES_PER_FOOT if self.unit == "ft" else self.value
+
+    def __str__(self) -> str:
+        return f"{self.value:g} {self.unit}"
+
+
+def parse_threshold(text: str) -> Threshold:
+    """'6ft', '6 ft', '1.8m', '2 metres' -> Threshold; the unit is required (a bare 6 could be either)."""
+    match = _THRESHOLD.match(text)
+    if not match:
+        raise AnalyzeError(f"threshold {text!r} is not a distance with a unit, such as 6ft or 1.8m")
+    value = float(match.group(1))
+    if not (math.isfinite(value) and 0 < value <= 1000):
+        raise AnalyzeError(f"threshold {text!r} must be a positive distance of at most 1000 units")
+    unit: Unit = "ft" if match.group(2).lower().startswith("f") else "m"
+    return Threshold(value, unit)
+
+
+@dataclass(frozen=True)
+class AnalyzeOptions:
+    """One run's choices (the command's options); `checked()` refuses impossible ones before any work starts."""
+
+    height_m: float = DEFAULT_HEIGHT_M
+    """Ankle-centre-to-shoulder-centre height prior (sets the metric scale)."""
+    equal_focal: bool = True
+    stride: int = 1
+    max_frames: int | None = None
+    pose_model: str | None = None
+    """`thunder` or `lightning`; None: the service's POSEMETRY_POSE_MODEL."""
+    threshold: Threshold | str = DEFAULT_THRESHOLD
+    """A Threshold, or text such as `6ft` that `checked()` parses."""
+    focal_px: float | None = None
+    """A known focal length: then only the ground plane is solved."""
+    distortion: bool = False
+    """Also estimate one-parameter division-model lens distortion."""
+    sample_cap: int = DEFAULT_SAMPLE_CAP
+    write_images: bool = True
+    write_video: bool | None = None
+    """None: an overlay video for video inputs only."""
+    image_format: str = "png"
+    unit: str = "m"
+    """Unit of the distance labels and of the grid cells (1 m, or 6 ft) in the pictures."""
+    model_dir: Path | None = None
+    """None: the service's POSEMETRY_MODEL_DIR."""
+    detector_input_px: int | None = None
+    """Side the person detector sees the frame at; None: the service's POSEMETRY_DETECTOR_INPUT_PX (640)."""
+
+    def checked(self) -> AnalyzeOptions:
+        """These options with the threshold parsed; AnalyzeError naming the first impossible choice."""
+        for name, value, allowed in (
+            ("--pose-model", self.pose_model, (*POSE_MODELS, None)),
+            ("--image-format", self.image_format, get_args(ImageFormat)),
+            ("--unit", self.unit, get_args(Unit)),
+        ):
+            if value not in allowed:
+                raise AnalyzeError(f"{name} must be one of {', '.join(a for a in allowed if a)}, got {value!r}")
+        if not (math.isfinite(self.height_m) and 0.3 <= self.height_m <= 2.5):
+            raise AnalyzeError(f"the person height prior must be between 0.3 and 2.5 m, got {self.height_m:g}")
+        if self.stride < 1:
+            raise AnalyzeError(f"the stride must be at least 1, got {self.stride}")
+        if self.max_frames is not None and self.max_frames < 1:
+            raise AnalyzeError(f"max frames must be at least 1, got {self.max_frames}")
+        if self.focal_px is not None and not (math.isfinite(self.focal_px) and 0 < self.focal_px <= 1e6):
+            raise AnalyzeError(f"the focal length must be a positive number of pixels, got {self.focal_px:g}")
+        px = self.detector_input_px
+        if px is not None and not (32 <= px <= 2048 and px % 32 == 0):
+            raise AnalyzeError(f"the detector input size must be a multiple of 32 from 32 to 2048 px, got {px}")
+        if self.sample_cap < 10:
+            raise AnalyzeError(f"the calibration sample cap must be at least 10, got {self.sample_cap}")
+        threshold = parse_threshold(self.threshold) if isinstance(self.threshold, str) else self.threshold
+        return replace(self, threshold=threshold)
+
+    @property
+    def threshold_m(self) -> float:
+        """The violation threshold in metres (options from `checked()`)."""
+        if isinstance(self.threshold, str):
+            raise TypeError("unchecked options: call checked() first")
+        return self.threshold.metres
+
+    def as_record(self) -> dict[str, Any]:
+        """JSON-ready, for calibration.json: what produced the numbers."""
+        record = asdict(self)
+        record["threshold"] = str(self.threshold)
+        record["threshold_m"] = self.threshold_m
+        record["model_dir"] = None if self.model_dir is None else str(self.model_dir)
+        return record

@@ -1,0 +1,304 @@
+"""One `posemetry analyze` run: pose on every frame, one calibration from all of them, then every frame measured.
+
+The order matters. A single frame holds a dozen people at most, too few to pin a focal length; pooled over a
+video they are hundreds, so the camera is solved once from the evidence of all frames (repeats of people standing
+still collapsed, see service.geometry.evidence) and that one calibration then measures every frame, exactly as
+the service's workers measure stored frames with a camera's current calibration. The steps are the service's
+own: `TopDownPose` finds people, `people_from_detections` decides who is evidence and why not,
+`solve_evidence` calibrates, `measure_people` places people and measures pairs.
+
+Only the people (centres, verdicts, compact keypoints) of every frame are held between the passes; a frame's pairs
+and pictures are written as it is measured and then dropped, so a long video costs time, not memory.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Literal, Protocol
+
+import numpy as np
+
+from service.geometry import Calibration
+from service.geometry.evidence import EvidenceSolve, solve_evidence
+from service.keypoints import people_from_detections
+from service.pose.types import PoseEstimator
+from service.results import measure_people
+from service.schemas import FrameResult
+from service.store.repository import PersonIn
+
+from .errors import AnalyzeError
+from .options import AnalyzeOptions
+from .records import CalibrationRole
+from .sources import FrameSource, SkippedFrame, SourceFrame, open_source
+
+Stage = Literal["pose", "calibration", "results"]
+# Fewer people than this give a rough camera (the service waits for as many before its first solve,
+# POSEMETRY_CALIBRATION_MIN_PEOPLE); analyze still reports it, with a warning, since the user asked for this input.
+FEW_PEOPLE = 30
+
+
+class Observer(Protocol):
+    """What a run reports while it works (the command shows it as progress bars)."""
+
+    def begin(self, stage: Stage, total: int | None) -> None: ...
+
+    def advance(self, people: int = 0) -> None: ...
+
+    def note(self, message: str) -> None: ...
+
+
+@dataclass(frozen=True)
+class AnalyzedFrame:
+    """A frame's people as the pose model found them."""
+
+    index: int
+    time_s: float | None
+    file: str | None
+    people: list[PersonIn]
+
+
+@dataclass(frozen=True)
+class Evidence:
+    """The usable people of all frames, pooled: shoulder and ankle centres, and whose they are."""
+
+    tops_px: np.ndarray
+    bottoms_px: np.ndarray
+    owners: list[tuple[int, int]]
+    """(position in the frame list, person index) of each row."""
+
+    @classmethod
+    def of(cls, frames: Sequence[AnalyzedFrame]) -> Evidence:
+        tops, bottoms, owners = [], [], []
+        for position, frame in enumerate(frames):
+            for index, person in enumerate(frame.people):
+                if person.unusable_reason is None and person.shoulder_px is not None and person.ankle_px is not None:
+                    tops.append(person.shoulder_px)
+                    bottoms.append(person.ankle_px)
+                    owners.append((position, index))
+        return cls(np.array(tops, dtype=float).reshape(-1, 2), np.array(bottoms, dtype=float).reshape(-1, 2), owners)
+
+    def __len__(self) -> int:
+        return len(self.owners)
+
+
+@dataclass
+class Analysis:
+    """Everything a run found: what the writers and the summary need."""
+
+    source: FrameSource
+    options: AnalyzeOptions
+    pose_model: str
+    frames: list[AnalyzedFrame]
+    skipped: list[SkippedFrame]
+    evidence: Evidence
+    solve: EvidenceSolve
+    roles: dict[tuple[int, int], CalibrationRole] = field(default_factory=dict)
+    """(frame position, person index) -> the person's part in the calibration (usable people only)."""
+    times_s: dict[str, float] = field(default_factory=dict)
+    """Seconds per stage: pose, calibration, results (measuring and writing tables and pictures)."""
+    warnings: list[str] = field(default_factory=list)
+    violations: int = 0
+    """Pairs under the threshold, over all frames (counted as frames are measured)."""
+    frames_with_violations: int = 0
+    people_placed: int = 0
+
+    @property
+    def calibration(self) -> Calibration | None:
+        return self.solve.calibration
+
+    @property
+    def people_seen(self) -> int:
+        return sum(len(frame.people) for frame in self.frames)
+
+    def unusable_reasons(self) -> dict[str, int]:
+        counts = Counter(p.unusable_reason for f in self.frames for p in f.people if p.unusable_reason is not None)
+        return dict(counts.most_common())
+
+    @property
+    def wants_video(self) -> bool:
+        """Overlay videos: asked for, or by default for a video input."""
+        wanted = self.options.write_video
+        return self.source.kind == "video" if wanted is None else wanted
+
+    def tally(self, result: FrameResult) -> None:
+        self.violations += len(result.violations)
+        self.frames_with_violations += bool(result.violations)
+        self.people_placed += sum(person.ground_m is not None for person in result.people)
+
+
+def detect(source: FrameSource, estimator: PoseEstimator, observer: Observer) -> tuple[list[AnalyzedFrame], list]:
+    """Pose on every frame the source delivers; each person reduced to centres and an evidence verdict."""
+    frames: list[AnalyzedFrame] = []
+    skipped: list[SkippedFrame] = []
+    observer.begin("pose", source.planned())
+    for item in source.frames():
+        if isinstance(item, SkippedFrame):
+            skipped.append(item)
+            observer.note(f"skipped {_frame_name(item.index, item.file)}: {item.reason}")
+            observer.advance()
+            continue
+        people = [_compact(p) for p in people_from_detections(estimator(item.image), source.image_size_px)]
+        frames.append(AnalyzedFrame(item.index, item.time_s, item.file, people))
+        observer.advance(people=len(people))
+    return frames, skipped
+
+
+def _compact(person: PersonIn) -> PersonIn:
+    """Keypoints as one small float32 array instead of 17 lists of Python floats (~6x less memory per person)."""
+    if person.keypoints is None:
+        return person
+    return replace(person, keypoints=np.asarray(person.keypoints, dtype=np.float32))
+
+
+def _frame_name(index: int, file: str | None) -> str:
+    return file if file is not None else f"frame {index}"
+
+
+def roles_of(evidence: Evidence, solve: EvidenceSolve) -> dict[tuple[int, int], CalibrationRole]:
+    """Each usable person's part in the solve: inlier, outlier (solved on, rejected) or unused."""
+    used = np.zeros(len(evidence), dtype=bool)
+    used[solve.used] = True
+    inlier = solve.inlier_mask(len(evidence))
+    return {
+        owner: "inlier" if inlier[row] else "outlier" if used[row] else "unused"
+        for row, owner in enumerate(evidence.owners)
+    }
+
+
+def calibrate_frames(
+    frames: Sequence[AnalyzedFrame], image_size_px: tuple[int, int], options: AnalyzeOptions
+) -> tuple[Evidence, EvidenceSolve]:
+    """One solve on the usable people of every frame."""
+    evidence = Evidence.of(frames)
+    solve = solve_evidence(
+        evidence.tops_px,
+        evidence.bottoms_px,
+        image_size_px,
+        options.height_m,
+        equal_focal=options.equal_focal,
+        focal_px=options.focal_px,
+        distortion=options.distortion,
+        cap=options.sample_cap,
+    )
+    return evidence, solve
+
+
+def _aligned_images(source: FrameSource, frames: Sequence[AnalyzedFrame]) -> Iterator[np.ndarray | None]:
+    """The image of each analysed frame, decoded again, in order (None if it no longer decodes)."""
+    items = (item for item in source.frames() if isinstance(item, SourceFrame))
+    item = next(items, None)
+    for frame in frames:
+        while item is not None and item.index < frame.index:
+            item = next(items, None)
+        yield item.image if item is not None and item.index == frame.index else None
+
+
+def report_frames(analysis: Analysis, out_dir: Path, observer: Observer) -> None:
+    """Measure every frame with the one calibration and write it (tables, pictures) as it is measured.
+
+    Streaming: a frame's pairs and pictures are dropped once written, so memory does not grow with the video.
+    """
+    from .pictures import PictureWriter
+    from .writers import TableWriter, frame_record
+
+    calibration = analysis.calibration
+    threshold_m = analysis.options.threshold_m
+    draw = calibration is not None and (analysis.options.write_images or analysis.wants_video)
+    images: Iterator[np.ndarray | None] = (
+        _aligned_images(analysis.source, analysis.frames) if draw else iter(lambda: None, 0)
+    )
+    observer.begin("results", len(analysis.frames))
+    with TableWriter(out_dir) as tables, PictureWriter(analysis, out_dir, observer, enabled=draw) as pictures:
+        for position, (frame, image) in enumerate(zip(analysis.frames, images, strict=False)):
+            result = None
+            if calibration is not None:
+                result = measure_people(frame.people, calibration, distance_threshold_m=threshold_m).result
+                analysis.tally(result)
+            tables.write(frame_record(analysis, position, frame, result))
+            if image is not None and result is not None:
+                pictures.draw(image, frame, result)
+            observer.advance(people=len(frame.people))
+
+
+def run_analysis(path: Path, out_dir: Path, options: AnalyzeOptions, observer: Observer) -> Analysis:
+    """The whole run; AnalyzeError for bad input or a camera that cannot be calibrated (after writing what can be).
+
+    When the calibration fails, calibration.json (with the reason and the evidence) and the people found are
+    still written, so the pose work of a long video is not lost; the pictures need a camera and are not drawn.
+    """
+    from .writers import prepare_output, write_calibration
+
+    options = options.checked()
+    source = open_source(path, stride=options.stride, max_frames=options.max_frames)
+    prepare_output(out_dir)
+    estimator = load_estimator(options)
+
+    started = time.perf_counter()
+    frames, skipped = detect(source, estimator, observer)
+    times = {"pose": time.perf_counter() - started}
+    if not frames:
+        raise AnalyzeError(f"no frame of {path} could be analysed ({len(skipped)} skipped, see the notes above)")
+
+    observer.begin("calibration", 1)
+    started = time.perf_counter()
+    evidence, solve = calibrate_frames(frames, source.image_size_px, options)
+    times["calibration"] = time.perf_counter() - started
+    observer.advance(people=solve.people_used)
+    analysis = Analysis(
+        source=source,
+        options=options,
+        pose_model=estimator.name,
+        frames=frames,
+        skipped=skipped,
+        evidence=evidence,
+        solve=solve,
+        roles=roles_of(evidence, solve),
+        times_s=times,
+    )
+    if solve.calibration is not None and solve.people_used < FEW_PEOPLE:
+        analysis.warnings.append(
+            f"only {solve.people_used} people to calibrate from (at least {FEW_PEOPLE} recommended): the camera is "
+            "rough; analyse more frames (a smaller --stride, more images) or give --focal-px"
+        )
+        observer.note(analysis.warnings[-1])
+    write_calibration(analysis, out_dir)
+    started = time.perf_counter()
+    report_frames(analysis, out_dir, observer)
+    times["results"] = time.perf_counter() - started
+    if solve.calibration is None:
+        raise AnalyzeError(_calibration_failure(analysis, out_dir))
+    return analysis
+
+
+def _calibration_failure(analysis: Analysis, out_dir: Path) -> str:
+    usable = len(analysis.evidence)
+    frames = len(analysis.frames)
+    if usable == 0:
+        what = "no usable people" if analysis.people_seen else "no people"
+        detail = f"{what} found in {frames} frames"
+    else:
+        detail = f"{analysis.solve.error} ({usable} usable people from {frames} frames)"
+    return f"calibration failed: {detail}; the people found are in {out_dir / 'frames.jsonl'}"
+
+
+def load_estimator(options: AnalyzeOptions) -> PoseEstimator:
+    """The service's pose estimator with this run's model (settings: model directory, threads, detector size)."""
+    from service.pose.model_files import ModelFilesError
+    from service.pose.pipeline import load_pose_estimator
+    from service.settings import get_settings
+
+    update: dict[str, object] = {}
+    if options.pose_model is not None:
+        update["pose_model"] = options.pose_model
+    if options.model_dir is not None:
+        update["model_dir"] = options.model_dir
+    if options.detector_input_px is not None:
+        update["detector_input_px"] = options.detector_input_px
+    try:
+        return load_pose_estimator(get_settings().model_copy(update=update))
+    except ModelFilesError as exc:
+        raise AnalyzeError(str(exc)) from None

@@ -1,0 +1,96 @@
+"""Bad input to `posemetry analyze`: one clear line and exit status 1, never a traceback; what can be kept is kept."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import pytest
+
+from service.analyze.errors import AnalyzeError
+from service.analyze.options import Threshold, parse_threshold
+
+from .conftest import analyze, write_image
+
+
+def _one_line_error(output: str) -> str:
+    lines = [line for line in output.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), output
+    assert "Traceback" not in output
+    return lines[0]
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["{tmp}/missing.mp4"], "does not exist"),
+        (["{tmp}/empty"], "no images in"),
+        (["{tmp}/clip.mp4"], "cannot read"),
+        (["{tmp}/empty", "--threshold", "6"], "with a unit"),
+        (["{tmp}/empty", "--threshold", "-2m"], "with a unit"),
+        (["{tmp}/empty", "--pose-model", "huge"], "--pose-model must be one of thunder, lightning"),
+        (["{tmp}/empty", "--height", "4"], "height prior must be between"),
+        (["{tmp}/empty", "--stride", "0"], "stride must be at least 1"),
+        (["{tmp}/empty", "--focal-px", "-5"], "focal length must be a positive"),
+        (["{tmp}/empty", "--unit", "yd"], "--unit must be one of m, ft"),
+    ],
+)
+def test_bad_input_is_one_line_and_exit_1(tmp_path: Path, args: list[str], message: str) -> None:
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "clip.mp4").write_text("not a video")
+    result = analyze(*(a.format(tmp=tmp_path) for a in args), "--out", tmp_path / "out")
+    assert result.exit_code == 1
+    assert message in _one_line_error(result.output)
+
+
+def test_missing_models_name_the_fix(tmp_path: Path) -> None:
+    write_image(tmp_path / "a.png")
+    result = analyze(tmp_path / "a.png", "--out", tmp_path / "out", "--model-dir", tmp_path / "no-models")
+    assert result.exit_code == 1
+    line = _one_line_error(result.output)
+    assert "rtmdet_nano_person_320.onnx" in line and "posemetry models fetch" in line
+
+
+def test_an_output_folder_that_cannot_be_written(tmp_path: Path) -> None:
+    write_image(tmp_path / "a.png")
+    (tmp_path / "taken").write_text("a file where the folder should go")
+    result = analyze(tmp_path / "a.png", "--out", tmp_path / "taken")
+    assert result.exit_code == 1 and "cannot write to" in _one_line_error(result.output)
+
+
+def test_no_people_fails_the_calibration_but_keeps_what_was_found(models: Path, tmp_path: Path) -> None:
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for n in range(2):
+        write_image(frames / f"empty_{n}.jpg", (640, 480), value=40 + 80 * n)
+    out = tmp_path / "out"
+    result = analyze(frames, "--out", out, "--model-dir", models)
+    assert result.exit_code == 1
+    assert "Traceback" not in result.output
+    assert "error: calibration failed: no people found in 2 frames" in result.output
+    cal = json.loads((out / "calibration.json").read_text())
+    assert cal["status"] == "failed" and cal["fx_px"] is None and cal["evidence"]["frames"] == 2
+    assert len((out / "frames.jsonl").read_text().splitlines()) == 2
+    assert not (out / "overlays").exists()
+
+
+def test_one_person_cannot_calibrate(models: Path, town: Path, tmp_path: Path) -> None:
+    """A crop of a real frame around one pedestrian: pose finds them, calibration refuses with its reason."""
+    frame = cv2.imread(str(town / "frames" / "clip_000000.jpg"))
+    crop = tmp_path / "one.png"
+    cv2.imwrite(str(crop), frame[560:1080, 1500:1900])  # the pedestrian bottom right, walking towards the camera
+    out = tmp_path / "out"
+    result = analyze(crop, "--out", out, "--model-dir", models, "--no-images")
+    assert result.exit_code == 1 and "Traceback" not in result.output
+    assert "error: calibration failed:" in result.output
+    cal = json.loads((out / "calibration.json").read_text())
+    assert cal["status"] == "failed" and cal["reason"] and cal["evidence"]["people_seen"] >= 1
+
+
+def test_thresholds_need_a_unit() -> None:
+    assert parse_threshold("6ft") == Threshold(6.0, "ft") and parse_threshold("6 ft").metres == pytest.approx(1.8288)
+    assert parse_threshold("1.5 metres") == Threshold(1.5, "m") and parse_threshold("2M").metres == 2.0
+    for bad in ("6", "ft", "six feet", "0m", "1e9 m", "nan m"):
+        with pytest.raises(AnalyzeError):
+            parse_threshold(bad)

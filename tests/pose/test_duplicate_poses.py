@@ -1,0 +1,68 @@
+"""Two detections with one pose are one person: the copy is kept as a detection but neither placed nor evidence."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from service.keypoints import people_from_detections
+from service.pose.pipeline import TopDownPose
+from service.pose.types import DetectedPerson
+
+from .conftest import IMAGE_SIZE
+
+# A standing person ~200 px tall: COCO-17 keypoints (x, y) from head to ankles.
+_POSE = np.array(
+    [
+        [500, 310],
+        [495, 305],
+        [505, 305],
+        [490, 308],
+        [510, 308],
+        [480, 340],
+        [520, 340],
+        [475, 390],
+        [525, 390],
+        [472, 430],
+        [528, 430],
+        [488, 430],
+        [512, 430],
+        [490, 470],
+        [510, 470],
+        [491, 505],
+        [509, 505],
+    ],
+    dtype=float,
+)
+
+
+def _person(keypoints: np.ndarray, box: tuple[float, float, float, float], score: float) -> DetectedPerson:
+    return DetectedPerson(box, score, keypoints, np.full(17, 0.8))
+
+
+def test_a_repeated_pose_is_dropped_and_a_close_neighbour_kept() -> None:
+    rng = np.random.default_rng(0)
+    found = [
+        _person(_POSE, (460, 290, 540, 515), 0.8),
+        # The same person read again from a neighbour's box (a few px of crop-to-crop jitter).
+        _person(_POSE + rng.normal(0, 1.5, _POSE.shape), (390, 280, 455, 500), 0.6),
+        # Someone pressed against them: a shoulder width (~50 px) to the right.
+        _person(_POSE + (50.0, 4.0), (505, 292, 590, 518), 0.5),
+    ]
+    people = people_from_detections(found, (1920, 1080))
+    assert people[0].unusable_reason is None and people[2].unusable_reason is None
+    assert people[1].shoulder_px is None and people[1].ankle_px is None
+    assert people[1].unusable_reason is not None and "same pose as person 0" in people[1].unusable_reason
+    assert people[1].box_px == (390, 280, 455, 500) and people[1].keypoints is not None  # the detection stays
+
+
+def test_no_two_people_of_a_real_frame_share_a_pose(thunder: TopDownPose, town_frames: dict[int, np.ndarray]) -> None:
+    """Town Centre frame 0 has such copies (a person read in a neighbour's crop); none survive as placed people."""
+    people = people_from_detections(thunder(town_frames[0]), IMAGE_SIZE)
+    copies = [p for p in people if p.unusable_reason is not None and p.unusable_reason.startswith("same pose")]
+    assert 1 <= len(copies) <= len(people) // 3
+    placed = [p for p in people if p.shoulder_px is not None]
+    for a in range(len(placed)):
+        for b in range(a + 1, len(placed)):
+            gap_px = np.hypot(*np.subtract(placed[a].shoulder_px, placed[b].shoulder_px))
+            height_px = max(p.box_px[3] - p.box_px[1] for p in (placed[a], placed[b]))  # type: ignore[index]
+            assert gap_px > 0.05 * height_px
