@@ -9,6 +9,7 @@ from __future__ import annotations
 import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from typing import TYPE_CHECKING
 
 from fastapi import FastAPI
 from sqlalchemy import Engine
@@ -16,11 +17,17 @@ from sqlalchemy import Engine
 from service import __version__
 from service.dispatch import Dispatcher, NullDispatcher
 from service.json_body import register_body_schemas
+from service.observability.collectors import SharedStateCollector
+from service.observability.http import RequestTelemetry
+from service.observability.metrics import exposition_registry
 from service.problems import PROBLEM_MEDIA_TYPE, BodyGuard, install_handlers
-from service.routers import calibration, cameras, distances, frames, health, pictures, violations
+from service.routers import calibration, cameras, distances, frames, health, metrics, pictures, violations
 from service.settings import Settings, get_settings
 from service.store import make_engine, make_session_factory
 from service.store.frame_writer import FrameWriter
+
+if TYPE_CHECKING:
+    from service.observability.queue_depths import QueueDepths
 
 log = logging.getLogger(__name__)
 
@@ -39,6 +46,7 @@ PROBLEM_SCHEMA = {
         "status": {"type": "integer"},
         "detail": {"type": "string"},
         "instance": {"type": "string"},
+        "request_id": {"type": "string", "description": "The request's id, as in the X-Request-ID header."},
         "errors": {"type": "array", "items": {"type": "object"}},
     },
     "required": ["type", "title", "status", "detail"],
@@ -50,11 +58,16 @@ PROBLEM_RESPONSES: dict[int | str, dict[str, object]] = {
 
 
 def create_app(
-    settings: Settings | None = None, *, dispatcher: Dispatcher | None = None, engine: Engine | None = None
+    settings: Settings | None = None,
+    *,
+    dispatcher: Dispatcher | None = None,
+    engine: Engine | None = None,
+    queue_depths: QueueDepths | None = None,
 ) -> FastAPI:
     """Build the API. `dispatcher` hands work to the workers (the CLI passes the Redis one); without it frames
     are stored but nobody is told (NullDispatcher). `engine` defaults to one built from settings and disposed
-    when the app shuts down; a passed engine stays the caller's."""
+    when the app shuts down; a passed engine stays the caller's. `queue_depths` reads the queues' depths for
+    /metrics (the CLI passes one on the dispatcher's Redis)."""
     settings = settings or get_settings()
     owns_engine = engine is None
     if engine is None:
@@ -85,9 +98,13 @@ def create_app(
     app.state.read_session_factory = make_session_factory(engine, read_only=True)
     app.state.frame_writer = FrameWriter(app.state.session_factory)
     app.state.dispatcher = dispatcher
+    shared_state = SharedStateCollector(app.state.read_session_factory, queue_depths)
+    app.state.metrics_registry = exposition_registry([shared_state])
     install_handlers(app)
     app.add_middleware(BodyGuard, max_body_bytes=settings.max_body_bytes, uploads=(frames.upload_route(settings),))
-    for module in (cameras, frames, pictures, calibration, distances, violations, health):
+    # Added last, so outermost: what the body guard refuses is measured, logged and given a request id too.
+    app.add_middleware(RequestTelemetry, route_templates=lambda: app.openapi()["paths"])
+    for module in (cameras, frames, pictures, calibration, distances, violations, health, metrics):
         app.include_router(module.router)
     register_body_schemas(app, frames.JSON_BODIES)
     return app

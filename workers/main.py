@@ -11,11 +11,16 @@ from __future__ import annotations
 
 import argparse
 import logging
+import shutil
+import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
-from rq import Queue, SimpleWorker, Worker
+from rq import Queue
 
+from service.observability.logs import LOG_FORMATS, configure_logging
+from service.observability.multiprocess import multiprocess_dir, use_directory
 from service.queue import POSE_QUEUE, QUEUES, RedisDispatcher, connect, redis_url, wait_for_redis
 from service.settings import Settings, get_settings
 from service.store.repository import calibration_due, cameras_with_pending_frames, frames_detecting, list_cameras
@@ -80,8 +85,11 @@ def run_worker(
 
     Without `fork`, jobs run in the worker process itself (rq's SimpleWorker): a frame job takes milliseconds,
     and forking a child per job would cost more than the job. `fork` isolates each job in a child process (a
-    crash or leak in one job cannot take the worker down) at that price.
+    crash or leak in one job cannot take the worker down) at that price. Either way every job is measured
+    (workers.instrumented).
     """
+    from workers.instrumented import InstrumentedSimpleWorker, InstrumentedWorker
+
     settings = settings or get_settings()
     jobs.preload()
     if POSE_QUEUE in queues:
@@ -97,9 +105,9 @@ def run_worker(
     )
     # Forked children must open their own database connections, never inherit the parent's.
     jobs.dispose_engines()
-    worker_class = Worker if fork else SimpleWorker
+    worker_class = InstrumentedWorker if fork else InstrumentedSimpleWorker
     worker = worker_class([Queue(queue, connection=connection) for queue in queues], connection=connection, name=name)
-    worker.work(burst=burst, logging_level="INFO")
+    worker.work(burst=burst, logging_level=settings.log_level.upper())
     return requeued
 
 
@@ -109,9 +117,28 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--queue", action="append", choices=QUEUES, help="queue to serve (repeatable; default all)")
     parser.add_argument("--burst", action="store_true", help="exit once the queues are empty")
     parser.add_argument("--fork", action="store_true", help="run each job in a forked child process")
+    parser.add_argument("--log-format", choices=LOG_FORMATS, help="json or text (default: setting log_format)")
+    parser.add_argument(
+        "--metrics-port", type=int, help="serve Prometheus metrics on this port (default: worker_metrics_port)"
+    )
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    run_worker(args.queue or QUEUES, burst=args.burst, fork=args.fork)
+    settings = get_settings()
+    configure_logging(args.log_format or settings.log_format, settings.log_level)
+    port = args.metrics_port if args.metrics_port is not None else settings.worker_metrics_port
+    private_dir = None
+    if port is not None and multiprocess_dir() is None:
+        # A forking worker's job processes must reach the port too: they write to files in a private directory.
+        private_dir = use_directory(Path(tempfile.mkdtemp(prefix="posemetry-worker-metrics-")), clear=False)
+    try:
+        if port is not None:
+            from service.observability.metrics import start_metrics_server
+
+            start_metrics_server(port, settings.worker_metrics_host)
+            log.info("metrics on http://%s:%d/metrics", settings.worker_metrics_host, port)
+        run_worker(args.queue or QUEUES, settings=settings, burst=args.burst, fork=args.fork)
+    finally:
+        if private_dir is not None:
+            shutil.rmtree(private_dir, ignore_errors=True)
 
 
 if __name__ == "__main__":
