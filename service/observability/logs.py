@@ -56,11 +56,12 @@ class ContextFilter(logging.Filter):
 
 
 def json_formatter() -> logging.Formatter:
-    """time (ISO 8601, UTC), level, logger, message, then the record's extra fields."""
+    """time (ISO 8601, UTC), level, logger, pid (`serve` interleaves several processes), message, then the
+    record's extra fields."""
     return JsonFormatter(
-        "{levelname}{name}{message}",
+        "{levelname}{name}{process}{message}",
         style="{",
-        rename_fields={"levelname": "level", "name": "logger"},
+        rename_fields={"levelname": "level", "name": "logger", "process": "pid"},
         timestamp="time",
     )
 
