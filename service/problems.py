@@ -23,6 +23,8 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.responses import JSONResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from service.observability.request_id import HEADER, current_request_id
+
 PROBLEM_MEDIA_TYPE = "application/problem+json"
 TYPE_BASE = "https://posemetry.dev/problems/"
 log = logging.getLogger(__name__)
@@ -46,6 +48,8 @@ class ProblemError(Exception):
 
 
 def problem_body(status: int, kind: str, detail: str, instance: str | None = None, **extensions: Any) -> dict[str, Any]:
+    """The problem document; it carries the request id (the current one unless given), so a client reporting an
+    error hands over the key to its log lines."""
     body: dict[str, Any] = {
         "type": TYPE_BASE + kind,
         "title": HTTPStatus(status).phrase,
@@ -54,6 +58,9 @@ def problem_body(status: int, kind: str, detail: str, instance: str | None = Non
     }
     if instance is not None:
         body["instance"] = instance
+    request_id = current_request_id()
+    if request_id is not None:
+        body["request_id"] = request_id
     body.update(jsonable_encoder(extensions))
     return body
 
@@ -138,8 +145,15 @@ def install_handlers(app: FastAPI) -> None:
 
     @app.exception_handler(Exception)
     async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
-        log.exception("unhandled error on %s %s", request.method, request.url.path)
-        return problem_response(500, "internal-error", "An unexpected error occurred; it has been logged.")
+        # Starlette answers this one outside the app's middleware, where the request id is no longer current
+        # and no longer added to the headers: both are taken from the request's state instead.
+        request_id = getattr(request.state, "request_id", None)
+        log.exception("unhandled error on %s %s", request.method, request.url.path, extra={"request_id": request_id})
+        extensions = {} if request_id is None else {"request_id": request_id}
+        headers = None if request_id is None else {HEADER: request_id}
+        return problem_response(
+            500, "internal-error", "An unexpected error occurred; it has been logged.", headers=headers, **extensions
+        )
 
 
 def _is_json(content_type: str) -> bool:

@@ -42,6 +42,7 @@ from rq.job import Job, JobStatus
 from rq.registry import ScheduledJobRegistry
 
 from service.dispatch import DispatchUnavailableError
+from service.observability.request_id import JOB_META_KEY, current_request_id
 
 if TYPE_CHECKING:
     from service.settings import Settings
@@ -378,6 +379,9 @@ class RedisDispatcher:
     def images_pending(self, frames: Iterable[tuple[str, uuid.UUID]]) -> int:
         """Queue pose jobs for (camera_id, frame_id) pairs; returns how many were actually queued."""
         queued = 0
+        # One request posts one image: the pose job carries its id (the worker logs under it).
+        request_id = current_request_id()
+        meta = None if request_id is None else {JOB_META_KEY: request_id}
         try:
             for camera_id, frame_id in frames:
                 job_id = pose_job_id(frame_id)
@@ -391,6 +395,7 @@ class RedisDispatcher:
                     job_timeout=POSE_JOB_TIMEOUT_S,
                     result_ttl=0,
                     failure_ttl=FAILED_JOB_TTL_S,
+                    meta=meta,
                 )
                 queued += 1
         except _REDIS_ERRORS as exc:

@@ -208,6 +208,37 @@ class Settings(BaseSettings):
             return tuple(part.strip() for part in value.split(",") if part.strip())
         return value
 
+    log_format: Literal["json", "text"] = Field(
+        default="json",
+        description="How the API and the workers write their logs: `json`, one JSON object per line with the "
+        "request id and the job's fields (for log collectors), or `text` for people. `posemetry serve` on a "
+        "terminal defaults to `text`; every command also takes `--log-format`.",
+    )
+    log_level: Literal["debug", "info", "warning", "error"] = Field(
+        default="info",
+        description="Lowest level logged by the API and the workers. `info` logs one line per request and per "
+        "measured frame; `debug` adds the health-check and /metrics requests.",
+    )
+    worker_metrics_port: int | None = Field(
+        default=None,
+        ge=1,
+        le=65535,
+        description="TCP port on which a `posemetry worker` serves its own Prometheus metrics, for workers on "
+        "machines or containers of their own. Unset: none; under `posemetry serve` the API's /metrics already "
+        "includes every worker's metrics.",
+    )
+    worker_metrics_host: str = Field(
+        default="127.0.0.1",
+        description="Interface the worker metrics port listens on; set `0.0.0.0` when Prometheus scrapes from "
+        "another machine or container.",
+    )
+
+    @field_validator("log_level", mode="before")
+    @classmethod
+    def _lower_case_level(cls, value: object) -> object:
+        """Accept `INFO` as well as `info`, as logging itself does."""
+        return value.lower() if isinstance(value, str) else value
+
     @field_validator("data_dir")
     @classmethod
     def _absolute_data_dir(cls, value: Path) -> Path:

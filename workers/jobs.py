@@ -24,6 +24,8 @@ from sqlalchemy import Engine
 from sqlalchemy.orm import Session, sessionmaker
 
 from service.dispatch import DispatchUnavailableError
+from service.observability.logs import log_context
+from service.observability.request_id import request_id_context
 from service.queue import CALIBRATION_QUEUE, FRAMES_JOB_BUDGET_S, FRAMES_QUEUE, RedisDispatcher, new_job_id
 from service.settings import Settings, get_settings
 from service.store import CalibrationVersion, Camera, Frame, make_engine, make_session_factory
@@ -31,6 +33,7 @@ from service.store.models import clip_reason
 from service.store.repository import (
     CalibrationValues,
     CameraNotFoundError,
+    FrameOutcome,
     add_calibration,
     calibration_due,
     current_calibration,
@@ -149,7 +152,8 @@ def _gated(kind: str, camera_id: str, work: Callable[[RedisDispatcher, str, bool
     if not ticket.run:
         return SKIPPED  # another job of this kind runs for the camera; the gate has scheduled a re-run after it
     try:
-        return work(dispatcher, job_id, ticket.forced)
+        with log_context(camera_id=camera_id):
+            return work(dispatcher, job_id, ticket.forced)
     finally:
         next_job_id = new_job_id(kind, camera_id)
         if gate.finish(camera_id, job_id, next_job_id):
@@ -164,13 +168,9 @@ def detect_people(frame_id: str) -> str:
     then have the camera's pending frames measured.
 
     The estimator is loaded once per worker process (`load_pose_estimator` caches it). A picture that cannot be
-    analysed, or missing model files, fail this frame with the reason, not the worker.
+    analysed, or missing model files, fail this frame with the reason, not the worker. Its log lines carry the
+    request id of the request that posted the image.
     """
-    from service.images import ImageError, decode
-    from service.keypoints import people_from_detections
-    from service.pose.model_files import ModelFilesError
-    from service.pose.pipeline import load_pose_estimator
-
     settings = get_settings()
     frame_uuid = uuid.UUID(frame_id)
     with read_session_factory(settings)() as session:
@@ -182,25 +182,49 @@ def detect_people(frame_id: str) -> str:
         camera = session.get(Camera, frame.camera_id)
         image = frame_image(session, frame_uuid)
         data = None if image is None else image.data
+        request_id = frame.request_id
     if camera is None:
         return GONE
+    # The frame's own request id: also right for a job queued again by a starting worker, which has no meta.
+    with request_id_context(request_id), log_context(camera_id=camera.id, frame_id=frame_id):
+        return _detect(settings, frame_uuid, camera, data)
+
+
+def _detect(settings: Settings, frame_uuid: uuid.UUID, camera: Camera, data: bytes | None) -> str:
+    from service.images import ImageError, decode
+    from service.keypoints import people_from_detections
+    from service.observability.metrics import POSE_INFERENCE
+    from service.pose.model_files import ModelFilesError
+    from service.pose.pipeline import load_pose_estimator
+
     try:
         if data is None:
             raise ImageError("the frame's image is no longer stored")
         _header, bgr = decode(data, max_pixels=settings.max_image_pixels)
         estimator = load_pose_estimator(settings)
+        started = time.perf_counter()
         found = estimator(bgr)
+        inference_s = time.perf_counter() - started
     except (ImageError, ModelFilesError) as exc:
-        log.warning("pose of frame %s of camera %s failed: %s", frame_id, camera.id, exc)
+        log.warning("pose of frame %s of camera %s failed: %s", frame_uuid, camera.id, exc)
         with _transaction(settings) as session:
             record_detection_failure(session, frame_uuid, str(exc))
         return FAILED
+    POSE_INFERENCE.labels(model=estimator.name).observe(inference_s)
     size = (camera.image_width_px, camera.image_height_px)
     people = people_from_detections(found[: settings.max_people_per_frame], size)
     with _transaction(settings) as session:
         stored = record_detections(session, frame_uuid, people, pose_model=estimator.name)
     if stored is None:
         return SKIPPED
+    log.info(
+        "frame %s of camera %s: %d people found in %.0f ms",
+        frame_uuid,
+        camera.id,
+        len(people),
+        inference_s * 1000,
+        extra={"people": len(people), "inference_ms": round(inference_s * 1000, 1), "pose_model": estimator.name},
+    )
     _dispatcher(settings).measure_requested([camera.id])
     return DONE
 
@@ -242,9 +266,8 @@ def _measure_pending(settings: Settings, dispatcher: RedisDispatcher, camera_id:
                 client_ids = {frame.id: frame.client_frame_id for frame in frames}
                 deliveries = violation_deliveries(session, camera, outcomes, settings, client_frame_ids=client_ids)
             _announce(dispatcher, deliveries)
-        failed = [o for o in outcomes if o.status == "failed"]
-        for o in failed:
-            log.warning("frame %s of camera %s failed: %s", o.frame_id, camera_id, o.error)
+        for frame, measured in zip(frames, outcomes, strict=True):
+            _log_measured(frame, measured)
         if len(frames) < FRAMES_CHUNK:
             break
         if time.monotonic() > deadline:
@@ -256,6 +279,23 @@ def _measure_pending(settings: Settings, dispatcher: RedisDispatcher, camera_id:
     ):
         dispatcher.calibration_requested(camera_id, False)
     return outcome
+
+
+def _log_measured(frame: Frame, outcome: FrameOutcome) -> None:
+    """One line per frame, under the request id that posted it: frames of many requests share a job."""
+    fields = {"request_id": frame.request_id, "frame_id": str(frame.id), "frame_status": outcome.status}
+    if outcome.status == "failed":
+        log.warning("frame %s of camera %s failed: %s", frame.id, frame.camera_id, outcome.error, extra=fields)
+        return
+    fields.update(violations=len(outcome.violations), calibration_version=outcome.calibration_version)
+    log.info(
+        "frame %s of camera %s measured: %d people, %d violations",
+        frame.id,
+        frame.camera_id,
+        frame.people,
+        len(outcome.violations),
+        extra=fields,
+    )
 
 
 # --------------------------------------------------------------------------------------------------- calibration

@@ -16,19 +16,25 @@ from __future__ import annotations
 
 import argparse
 import logging
+import shutil
+import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import timedelta
+from pathlib import Path
 from typing import Any
 
-from rq import Queue, SimpleWorker, Worker
+from rq import Queue
 
+from service.observability.logs import LOG_FORMATS, configure_logging
+from service.observability.multiprocess import multiprocess_dir, use_directory
 from service.queue import POSE_QUEUE, QUEUES, WEBHOOKS_QUEUE, RedisDispatcher, connect, redis_url, wait_for_redis
 from service.settings import Settings, get_settings
 from service.store.models import utc_now
 from service.store.repository import calibration_due, cameras_with_pending_frames, frames_detecting, list_cameras
 from service.store.webhooks import pending_deliveries
 from workers import jobs
+from workers.instrumented import InstrumentedSimpleWorker, InstrumentedWorker
 
 log = logging.getLogger(__name__)
 
@@ -118,12 +124,12 @@ class _SweepsDeliveries:
             log.warning("sweep: queued %d overdue webhook delivery attempts", queued)
 
 
-class SweepingSimpleWorker(_SweepsDeliveries, SimpleWorker):
-    """SimpleWorker (jobs in the worker process) with the webhook sweep."""
+class SweepingSimpleWorker(_SweepsDeliveries, InstrumentedSimpleWorker):
+    """Jobs in the worker process, measured (workers.instrumented), with the webhook sweep."""
 
 
-class SweepingWorker(_SweepsDeliveries, Worker):
-    """Worker (a forked child per job) with the webhook sweep."""
+class SweepingWorker(_SweepsDeliveries, InstrumentedWorker):
+    """A forked child per job, measured (workers.instrumented), with the webhook sweep."""
 
 
 def run_worker(
@@ -138,7 +144,8 @@ def run_worker(
 
     Without `fork`, jobs run in the worker process itself (rq's SimpleWorker): a frame job takes milliseconds,
     and forking a child per job would cost more than the job. `fork` isolates each job in a child process (a
-    crash or leak in one job cannot take the worker down) at that price.
+    crash or leak in one job cannot take the worker down) at that price. Either way every job is measured
+    (workers.instrumented).
     """
     settings = settings or get_settings()
     jobs.preload()
@@ -160,7 +167,7 @@ def run_worker(
     worker = worker_class(
         [Queue(queue, connection=connection) for queue in queues], connection=connection, name=name, settings=settings
     )
-    worker.work(burst=burst, logging_level="INFO", with_scheduler=WEBHOOKS_QUEUE in queues)
+    worker.work(burst=burst, logging_level=settings.log_level.upper(), with_scheduler=WEBHOOKS_QUEUE in queues)
     return requeued
 
 
@@ -170,9 +177,28 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--queue", action="append", choices=QUEUES, help="queue to serve (repeatable; default all)")
     parser.add_argument("--burst", action="store_true", help="exit once the queues are empty")
     parser.add_argument("--fork", action="store_true", help="run each job in a forked child process")
+    parser.add_argument("--log-format", choices=LOG_FORMATS, help="json or text (default: setting log_format)")
+    parser.add_argument(
+        "--metrics-port", type=int, help="serve Prometheus metrics on this port (default: worker_metrics_port)"
+    )
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    run_worker(args.queue or QUEUES, burst=args.burst, fork=args.fork)
+    settings = get_settings()
+    configure_logging(args.log_format or settings.log_format, settings.log_level)
+    port = args.metrics_port if args.metrics_port is not None else settings.worker_metrics_port
+    private_dir = None
+    if port is not None and multiprocess_dir() is None:
+        # A forking worker's job processes must reach the port too: they write to files in a private directory.
+        private_dir = use_directory(Path(tempfile.mkdtemp(prefix="posemetry-worker-metrics-")), clear=False)
+    try:
+        if port is not None:
+            from service.observability.metrics import start_metrics_server
+
+            start_metrics_server(port, settings.worker_metrics_host)
+            log.info("metrics on http://%s:%d/metrics", settings.worker_metrics_host, port)
+        run_worker(args.queue or QUEUES, settings=settings, burst=args.burst, fork=args.fork)
+    finally:
+        if private_dir is not None:
+            shutil.rmtree(private_dir, ignore_errors=True)
 
 
 if __name__ == "__main__":

@@ -51,7 +51,8 @@ async def require_key(
 async def require_admin(principal: Annotated[Principal, Depends(require_key)]) -> Principal:
     if not principal.admin:
         raise forbidden(
-            "admin-key-required", "Only admin keys manage API keys and webhooks; this one is not an admin key."
+            "admin-key-required",
+            "Only admin keys manage API keys and webhooks and read /metrics; this one is not an admin key.",
         )
     return principal
 

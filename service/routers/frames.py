@@ -14,6 +14,8 @@ from starlette.datastructures import State
 from service.dispatch import UNAVAILABLE_ERRORS, Dispatcher
 from service.images import ImageError, ImageTooLargeError, decode
 from service.json_body import json_body, openapi_body
+from service.observability.metrics import FRAMES_INGESTED
+from service.observability.request_id import current_request_id
 from service.problems import ProblemError, UploadRoute
 from service.schemas import (
     CLIENT_FRAME_ID_PATTERN,
@@ -87,10 +89,14 @@ def _store_keypoints(state: State, camera_id: str, body: KeypointFrame, response
     writer: FrameWriter = state.frame_writer
     try:
         frame, created = writer.add(
-            repository.NewKeypointFrame(camera, body.timestamp, people, client_frame_id=body.frame_id)
+            repository.NewKeypointFrame(
+                camera, body.timestamp, people, client_frame_id=body.frame_id, request_id=current_request_id()
+            )
         )
     except repository.CameraNotFoundError:
         raise camera_not_found(camera_id) from None  # deleted since it was read
+    if created:
+        FRAMES_INGESTED.labels(source="keypoints").inc()
     url = frame_url(camera_id, frame.id)
     if created or frame.status == "pending":
         try:
@@ -186,10 +192,13 @@ def _store_image(
                 height_px=header.height_px,
                 data=upload.data,
                 client_frame_id=upload.frame_id,
+                request_id=current_request_id(),
             )
         except repository.CameraNotFoundError:
             raise camera_not_found(camera_id) from None
         session.commit()
+    if created:
+        FRAMES_INGESTED.labels(source="image").inc()
     url = frame_url(camera_id, frame.id)
     if created or frame.status == "detecting":
         try:

@@ -88,6 +88,8 @@ FRAME_SOURCES = ("keypoints", "image")
 FRAME_STATUSES = ("detecting", "pending", "done", "failed")
 IMAGE_CONTENT_TYPES = ("image/jpeg", "image/png")
 POSE_MODEL_MAX_LENGTH = 64
+# service.observability.request_id.REQUEST_ID_MAX_LENGTH (not imported: the store does not depend on the API).
+REQUEST_ID_MAX_LENGTH = 128
 # COCO-17 keypoints as stored: (x px, y px, score) float32, little-endian, one row per keypoint.
 KEYPOINTS_DTYPE = np.dtype("<f4")
 KEYPOINT_COUNT = 17
@@ -199,6 +201,9 @@ class Frame(Base):
     calibration_version: Mapped[int | None] = mapped_column(Integer)
     # Which pose model found the people of an image frame (None for posted keypoints).
     pose_model: Mapped[str | None] = mapped_column(String(POSE_MODEL_MAX_LENGTH))
+    # The id of the request that posted the frame, so the jobs that handle it (pose, measuring in per-camera
+    # batches) log under that id too.
+    request_id: Mapped[str | None] = mapped_column(String(REQUEST_ID_MAX_LENGTH))
     error: Mapped[str | None]
     processed_at: Mapped[datetime | None]
 

@@ -60,6 +60,7 @@ _FRAME_COLUMNS = (
     "status",
     "people",
     "pose_model",
+    "request_id",
 )
 _VIOLATION_EVENTS = cast(Table, ViolationEvent.__table__)
 
@@ -106,6 +107,8 @@ class NewKeypointFrame:
     timestamp: datetime
     people: Sequence[PersonIn]
     client_frame_id: str | None = None
+    request_id: str | None = None
+    """The posting request's id, kept so the jobs that handle the frame log under it."""
 
 
 @dataclass(frozen=True)
@@ -437,6 +440,7 @@ def add_keypoint_frame(
     client_frame_id: str | None = None,
     received_at: datetime | None = None,
     camera: Camera | None = None,
+    request_id: str | None = None,
 ) -> tuple[Frame, bool]:
     """Store a frame and its people atomically; returns (frame, created).
 
@@ -444,6 +448,7 @@ def add_keypoint_frame(
     the stored frame with created=False and stores nothing, so evidence is never counted twice. `camera`, when
     the caller has already read it (the API, in a read-only session), saves reading it again inside the write
     transaction; only its image size is used, and a camera deleted meanwhile is still refused (foreign key).
+    `request_id` is the posting request's id, kept so the jobs that handle the frame log under it.
     """
     _check_timestamp(timestamp)
     if camera is None:
@@ -453,7 +458,9 @@ def add_keypoint_frame(
         if existing is not None:
             return existing, False
     # The rows go in as Core inserts, which cost a fraction of an ORM flush.
-    frame = _new_frame(camera_id, timestamp, client_frame_id, received_at or utc_now(), people=len(people))
+    frame = _new_frame(
+        camera_id, timestamp, client_frame_id, received_at or utc_now(), people=len(people), request_id=request_id
+    )
     rows = _observation_rows(camera, frame.id, people)
     try:
         # A savepoint only where a unique-id race is possible: it costs two statements on the hot path.
@@ -501,7 +508,14 @@ def add_keypoint_frames(
         if item.client_frame_id is not None and key in known:
             results.append((known[key], False))
             continue
-        frame = _new_frame(camera_id, item.timestamp, item.client_frame_id, received_at, people=len(item.people))
+        frame = _new_frame(
+            camera_id,
+            item.timestamp,
+            item.client_frame_id,
+            received_at,
+            people=len(item.people),
+            request_id=item.request_id,
+        )
         if item.client_frame_id is not None:
             known[key] = frame
         rows = _observation_rows(item.camera, frame.id, item.people)
@@ -548,6 +562,7 @@ def _new_frame(
     *,
     source: str = "keypoints",
     people: int = 0,
+    request_id: str | None = None,
 ) -> Frame:
     """A frame not yet inserted: keypoint frames wait to be measured, image frames for their pose job first."""
     return Frame(
@@ -559,6 +574,7 @@ def _new_frame(
         source=source,
         status="pending" if source == "keypoints" else "detecting",
         people=people,
+        request_id=request_id,
     )
 
 
@@ -579,6 +595,7 @@ def add_image_frame(
     data: bytes,
     client_frame_id: str | None = None,
     received_at: datetime | None = None,
+    request_id: str | None = None,
 ) -> tuple[Frame, bool]:
     """Store an image frame, `detecting` until its pose job has run; returns (frame, created) like keypoint frames.
 
@@ -590,7 +607,9 @@ def add_image_frame(
         existing = _frame_by_client_id(session, camera.id, client_frame_id)
         if existing is not None:
             return existing, False
-    frame = _new_frame(camera.id, timestamp, client_frame_id, received_at or utc_now(), source="image")
+    frame = _new_frame(
+        camera.id, timestamp, client_frame_id, received_at or utc_now(), source="image", request_id=request_id
+    )
     image = {
         "frame_id": frame.id,
         "content_type": content_type,

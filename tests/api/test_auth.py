@@ -210,7 +210,9 @@ def test_only_admin_keys_manage_keys(client: TestClient, client_for: Callable[[s
     }
 
 
-def test_only_admin_keys_manage_webhooks(client: TestClient, client_for: Callable[[str], TestClient]) -> None:
+def test_only_admin_keys_manage_webhooks_and_read_metrics(
+    client: TestClient, client_for: Callable[[str], TestClient]
+) -> None:
     """A subscription sends camera data to an outside URL: an operator's decision, so camera keys get 403."""
     holder = client_for(new_key(client)["token"])
     subscription = client.post("/v1/webhooks", json={"url": "https://93.184.216.34/hook"}).json()
@@ -223,6 +225,9 @@ def test_only_admin_keys_manage_webhooks(client: TestClient, client_for: Callabl
     ):
         assert_problem(holder.request(method, path, json=body), 403, "admin keys")
     assert [item["id"] for item in client.get("/v1/webhooks").json()["items"]] == [subscription["id"]]
+    # /metrics names every camera: admins (and the Prometheus that holds an admin key) only.
+    assert_problem(holder.get("/metrics"), 403, "admin keys")
+    assert client.get("/metrics").status_code == 200
 
 
 def test_admin_keys_made_over_http_manage_keys_too(client: TestClient, client_for: Callable[[str], TestClient]) -> None:
