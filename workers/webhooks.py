@@ -20,6 +20,7 @@ from rq import get_current_job
 from sqlalchemy.orm import Session
 
 from service.dispatch import DispatchUnavailableError
+from service.observability.metrics import WebhookOutcome, record_webhook_delivery
 from service.queue import RedisDispatcher
 from service.settings import Settings, get_settings
 from service.store.models import utc_now
@@ -35,6 +36,8 @@ log = logging.getLogger(__name__)
 LEASE_MARGIN_S = 60.0
 # Each worker process prunes the delivery log at most this often (one DELETE, after a delivery).
 PRUNE_INTERVAL_S = 3600.0
+# The delivery-metric label of each decision; an attempt the SSRF policy refused counts as `blocked`.
+_METRIC_OUTCOMES: dict[str, WebhookOutcome] = {"delivered": "delivered", "retry": "retrying", "failed": "failed"}
 _last_prune_s = -PRUNE_INTERVAL_S
 
 
@@ -90,6 +93,7 @@ def _attempt(claim: Claim, settings: Settings) -> AttemptRecord:
         base_s=settings.webhook_retry_base_s,
         cap_s=settings.webhook_retry_cap_s,
     )
+    record_webhook_delivery(_METRIC_OUTCOMES[decision.outcome] if not result.refused else "blocked")
     return AttemptRecord(
         outcome=decision.outcome,
         duration_s=result.duration_s,

@@ -11,6 +11,7 @@ import sys
 import threading
 import time
 import uuid
+from collections import Counter
 from collections.abc import Callable, Iterator
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
@@ -28,6 +29,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from service.app import create_app
 from service.keypoints import person_from_centres
+from service.observability.metrics import WEBHOOK_DELIVERIES, WEBHOOK_OUTCOMES
 from service.queue import WEBHOOKS_QUEUE, RedisDispatcher, webhook_job_id
 from service.schemas import METRES_PER_FOOT
 from service.settings import get_settings
@@ -297,6 +299,13 @@ def test_cooldown_a_lingering_pair_fires_once_per_window_another_pair_at_once(
 # --------------------------------------------------------------------------------------------------- retries
 
 
+def _delivery_counts() -> Counter[str]:
+    """This process's posemetry_webhook_deliveries_total by outcome."""
+    return Counter(
+        {outcome: int(WEBHOOK_DELIVERIES.labels(outcome=outcome)._value.get()) for outcome in WEBHOOK_OUTCOMES}
+    )
+
+
 def test_a_failed_attempt_is_scheduled_with_backoff_and_logged_truncated(
     sessions: sessionmaker[Session],
     dispatcher: RedisDispatcher,
@@ -313,6 +322,7 @@ def test_a_failed_attempt_is_scheduled_with_backoff_and_logged_truncated(
     [delivery_id] = _raise_events(sessions, subscription["id"], 1)
     receiver.default = Answer(503, b"x" * (3 * RESPONSE_LOG_BYTES))
     registry = ScheduledJobRegistry(WEBHOOKS_QUEUE, connection=connection)
+    counted = _delivery_counts()
     waits = []
     for attempt in range(1, 6):
         started = time.time()
@@ -333,6 +343,7 @@ def test_a_failed_attempt_is_scheduled_with_backoff_and_logged_truncated(
         (1, "retry", 503), (2, "retry", 503), (3, "retry", 503), (4, "retry", 503), (5, "failed", 503),
     ]  # fmt: skip
     assert all(a["response_truncated"] and len(a["response_body"]) == RESPONSE_LOG_BYTES for a in log)
+    assert _delivery_counts() - counted == Counter(retrying=4, failed=1)  # posemetry_webhook_deliveries_total
     # Every attempt carried the same webhook-id, and a fresh signature each time.
     requests = receiver.received()
     assert {r.webhook_id for r in requests} == {entry["webhook_id"]} and len(requests) == 5
@@ -561,8 +572,10 @@ def test_the_address_is_checked_again_at_delivery_time(
     [delivery_id] = _raise_events(sessions, subscription["id"], 1)
     monkeypatch.setenv("POSEMETRY_WEBHOOK_ALLOWED_NETWORKS", "")
     get_settings.cache_clear()
+    counted = _delivery_counts()
     assert deliver_webhook(str(delivery_id), 1) == "failed"
     assert receiver.received() == []
+    assert _delivery_counts() - counted == Counter(blocked=1)
     [attempt] = _attempts(sessions, delivery_id)
     assert attempt.outcome == "failed" and "SSRF" in (attempt.error or "") and "loopback" in (attempt.error or "")
     with sessions() as session:
