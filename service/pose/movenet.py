@@ -26,15 +26,18 @@ for hardware where it may pay (many-core CPUs, GPUs), and the benchmark keeps co
 from __future__ import annotations
 
 import logging
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Final
+from typing import Final, Literal
 
 import cv2
 import numpy as np
+import onnxruntime as ort
 
 from .model_files import POSE_INPUT_PX, PoseModelName
-from .sessions import make_session
+from .sessions import default_threads, make_session
 from .types import COCO17_KEYPOINTS
 
 log = logging.getLogger(__name__)
@@ -47,6 +50,8 @@ OUTPUT_NAME: Final = "output_0"
 MAX_BATCH: Final = 32
 # Largest difference allowed between the split and the original graph's outputs (0..1 coordinates and scores).
 SPLIT_TOLERANCE: Final = 1e-5
+CropMode = Literal["concurrent", "batched", "loop"]
+CROP_MODES: Final[tuple[CropMode, ...]] = ("concurrent", "batched", "loop")
 
 
 @dataclass(frozen=True)
@@ -77,13 +82,16 @@ def extract_crop(image_bgr: np.ndarray, window: CropWindow, out_px: int) -> np.n
     """(out_px, out_px, 3) uint8 RGB: the window, black where it leaves the image, resized (area filter downwards)."""
     height, width = image_bgr.shape[:2]
     side = window.side
-    square = np.zeros((side, side, 3), dtype=np.uint8)
     x_lo, y_lo = max(window.x0, 0), max(window.y0, 0)
     x_hi, y_hi = min(window.x0 + side, width), min(window.y0 + side, height)
-    if x_hi > x_lo and y_hi > y_lo:
-        square[y_lo - window.y0 : y_hi - window.y0, x_lo - window.x0 : x_hi - window.x0] = image_bgr[
-            y_lo:y_hi, x_lo:x_hi
-        ]
+    if (x_hi - x_lo, y_hi - y_lo) == (side, side):
+        square = image_bgr[y_lo:y_hi, x_lo:x_hi]  # inside the image: resized straight from a view, no copy
+    else:
+        square = np.zeros((side, side, 3), dtype=np.uint8)
+        if x_hi > x_lo and y_hi > y_lo:
+            square[y_lo - window.y0 : y_hi - window.y0, x_lo - window.x0 : x_hi - window.x0] = image_bgr[
+                y_lo:y_hi, x_lo:x_hi
+            ]
     interpolation = cv2.INTER_AREA if side > out_px else cv2.INTER_LINEAR
     resized = cv2.resize(square, (out_px, out_px), interpolation=interpolation)
     return cv2.cvtColor(resized, cv2.COLOR_BGR2RGB)
@@ -148,74 +156,216 @@ def _split_graph(model_bytes: bytes) -> tuple[bytes, bytes, list[str]] | None:
     return backbone.SerializeToString(), head.SerializeToString(), between
 
 
+@dataclass(frozen=True)
+class InputNormalisation:
+    """What the converted graph's preamble does to the int32 RGB NHWC crop: `(x - offset) * scale - shift`, NCHW."""
+
+    offset: np.ndarray
+    scale: np.ndarray
+    shift: np.ndarray
+
+    def __call__(self, crops_rgb: np.ndarray) -> np.ndarray:
+        """(N, S, S, 3) uint8 RGB to the (N, 3, S, S) float32 tensor the first convolution reads, bit for bit."""
+        normalised = (crops_rgb.astype(np.float32) - self.offset) * self.scale - self.shift
+        return np.ascontiguousarray(normalised.transpose(0, 3, 1, 2))
+
+
+PREAMBLE_OPS: Final = ("Cast", "Split", "Sub", "Mul", "Sub", "Transpose")
+
+
+def _trim_preamble(model_bytes: bytes) -> tuple[bytes, InputNormalisation] | None:
+    """The graph starting at its first convolution (input: normalised float NCHW), and the normalisation it skips.
+
+    tf2onnx keeps TF.js's preamble (cast int32 to float, unstack the batch, subtract 0, multiply by 1/127.5,
+    subtract 1, NHWC to NCHW) as six elementwise nodes over the whole crop; onnxruntime runs them at ~1.5 ms per
+    Thunder crop (~1 ms per Lightning crop, 15 % of its time), as much as a dozen convolutions. The same float32
+    arithmetic in numpy, on all of a frame's crops at once, costs a fraction of that. None when the graph does
+    not start with exactly that preamble (another conversion): then the untouched graph is used.
+    """
+    try:
+        import onnx
+        from onnx import numpy_helper
+    except ImportError:
+        return None
+    model = onnx.load_from_string(model_bytes)
+    nodes = list(model.graph.node)
+    ops = tuple(node.op_type for node in nodes[: len(PREAMBLE_OPS) + 1])
+    if ops != (*PREAMBLE_OPS, "Conv"):
+        return None
+    cast, split, sub, mul, sub_1, transpose = nodes[: len(PREAMBLE_OPS)]
+    chained = [cast.input[0] == INPUT_NAME, split.input[0] == cast.output[0], sub.input[0] == split.output[0]]
+    chained += [mul.input[0] == sub.output[0], sub_1.input[0] == mul.output[0], transpose.input[0] == sub_1.output[0]]
+    perm = next((list(a.ints) for a in transpose.attribute if a.name == "perm"), None)
+    inits = {init.name: init for init in model.graph.initializer}
+    constants = [inits.get(node.input[1]) for node in (sub, mul, sub_1)]
+    if not all(chained) or perm != [0, 3, 1, 2] or any(c is None for c in constants):
+        return None
+    offset, scale, shift = (numpy_helper.to_array(c).astype(np.float32).reshape(-1) for c in constants)  # type: ignore[arg-type]
+    conv_input = transpose.output[0]
+    if sum(conv_input in n.input for n in nodes) != 1:
+        return None
+    size = [d.dim_value for d in model.graph.input[0].type.tensor_type.shape.dim]  # [1, S, S, 3]
+    del model.graph.node[: len(PREAMBLE_OPS)]
+    for name_list in (n.input for n in model.graph.node):
+        for k, name in enumerate(name_list):
+            if name == conv_input:
+                name_list[k] = INPUT_NAME
+    del model.graph.input[:]
+    model.graph.input.append(
+        onnx.helper.make_tensor_value_info(INPUT_NAME, onnx.TensorProto.FLOAT, [size[0], 3, size[1], size[2]])
+    )
+    used = {name for node in model.graph.node for name in node.input}
+    kept = [init for init in model.graph.initializer if init.name in used]
+    del model.graph.initializer[:]
+    model.graph.initializer.extend(kept)
+    del model.graph.value_info[:]
+    return model.SerializeToString(), InputNormalisation(offset, scale, shift)
+
+
+def _process_pool(workers: int) -> ThreadPoolExecutor:
+    """This process's crop threads (rebuilt in a forked child: an inherited pool's threads do not exist there)."""
+    key = (os.getpid(), workers)
+    pool = _POOLS.get(key)
+    if pool is None:
+        pool = _POOLS[key] = ThreadPoolExecutor(workers, thread_name_prefix="movenet-crop")
+    return pool
+
+
+_POOLS: dict[tuple[int, int], ThreadPoolExecutor] = {}
+
+
 class MoveNet:
-    """One MoveNet SinglePose model; crops batched through a split graph when possible, else one run per crop."""
+    """One MoveNet SinglePose model on a frame's person crops, in one of three `CropMode`s (see the module notes)."""
 
     def __init__(
-        self, model_path: Path, pose_model: PoseModelName, *, threads: int | None = None, batch: bool = False
+        self,
+        model_path: Path,
+        pose_model: PoseModelName,
+        *,
+        threads: int | None = None,
+        crops: CropMode = "concurrent",
     ) -> None:
+        if crops not in CROP_MODES:
+            raise ValueError(f"unknown crop mode {crops!r}; expected one of {', '.join(CROP_MODES)}")
         self.pose_model = pose_model
         self.input_px = INPUT_PX[pose_model]
+        self.workers = threads or default_threads()
+        self.crop_mode: CropMode = crops
         model_bytes = Path(model_path).read_bytes()
-        self.full = make_session(model_bytes, threads)
+        # Concurrent crops each run on one core; the loop and the batch use the session's intra-op threads.
+        session_threads = 1 if crops == "concurrent" else self.workers
+        self.normalise: InputNormalisation | None = None
+        graph_bytes = model_bytes
+        trimmed = _trim_preamble(model_bytes)
+        if trimmed is not None:
+            self.full = make_session(trimmed[0], session_threads)
+            self.normalise = trimmed[1]
+            if self._trim_agrees(make_session(model_bytes, 1)):
+                graph_bytes = trimmed[0]
+            else:
+                log.warning("%s: trimmed graph disagrees with the original; using the original", pose_model)
+                self.normalise = None
+        if self.normalise is None:
+            self.full = make_session(model_bytes, session_threads)
         self.backbone = self.head = None
         self._between: list[str] = []
-        if batch:
-            split = _split_graph(model_bytes)
+        if crops == "batched":
+            split = _split_graph(graph_bytes)
             if split is None:
                 log.info("%s: graph not splittable here (no `onnx` package?); crops run one at a time", pose_model)
             else:
                 backbone_bytes, head_bytes, self._between = split
-                self.backbone = make_session(backbone_bytes, threads)
-                self.head = make_session(head_bytes, threads)
+                self.backbone = make_session(backbone_bytes, self.workers)
+                self.head = make_session(head_bytes, self.workers)
                 if not self._split_agrees():
                     log.warning("%s: split graph disagrees with the original; crops run one at a time", pose_model)
                     self.backbone = self.head = None
 
     @property
     def batched(self) -> bool:
-        """Whether crops go through the backbone together (False: the plain per-crop loop)."""
+        """Whether crops go through the backbone together (False: one run per crop)."""
         return self.backbone is not None
 
-    def _split_agrees(self) -> bool:
-        """The split graph, run as a batch, reproduces the untouched one (to float rounding) on two fixed crops."""
+    @property
+    def trimmed(self) -> bool:
+        """Whether the input preamble runs in numpy (False: the untouched converted graph)."""
+        return self.normalise is not None
+
+    def prepare(self, crops_rgb: np.ndarray) -> np.ndarray:
+        """(N, S, S, 3) uint8 RGB crops as the session's input tensor."""
+        if self.normalise is None:
+            return crops_rgb.astype(np.int32)
+        return self.normalise(crops_rgb)
+
+    def _fixed_crops(self) -> np.ndarray:
         rng = np.random.default_rng(0)
-        crops = rng.integers(0, 256, (2, self.input_px, self.input_px, 3)).astype(np.int32)
-        reference = np.concatenate([self.full.run([OUTPUT_NAME], {INPUT_NAME: c[None]})[0] for c in crops])
+        return rng.integers(0, 256, (2, self.input_px, self.input_px, 3)).astype(np.uint8)
+
+    def _trim_agrees(self, original: ort.InferenceSession) -> bool:
+        """The trimmed graph with numpy's preamble reproduces the untouched graph on two fixed crops."""
+        crops = self._fixed_crops()
+        feeds = ({INPUT_NAME: crop[None].astype(np.int32)} for crop in crops)
+        reference = np.concatenate([original.run([OUTPUT_NAME], feed)[0] for feed in feeds])
         try:
-            split = self._run_split(crops)
+            trimmed = self._run_each(self.prepare(crops))
+        except Exception:  # an onnxruntime failure of the edited graph means: do not use it
+            log.exception("%s: trimmed graph failed to run", self.pose_model)
+            return False
+        return bool(np.allclose(reference, trimmed, rtol=0.0, atol=SPLIT_TOLERANCE))
+
+    def _split_agrees(self) -> bool:
+        """The split graph, run as a batch, reproduces the whole graph (to float rounding) on two fixed crops."""
+        tensors = self.prepare(self._fixed_crops())
+        reference = self._run_each(tensors)
+        try:
+            split = self._run_split(tensors)
         except Exception:  # an onnxruntime failure of the edited graph means: do not use it
             log.exception("%s: split graph failed to run", self.pose_model)
             return False
         # Different graph optimisations (fusions) of the two graphs round differently: ~2e-7 of the crop side.
         return bool(np.allclose(reference, split, rtol=0.0, atol=SPLIT_TOLERANCE))
 
-    def _run_split(self, crops: np.ndarray) -> np.ndarray:
+    def _run_one(self, tensor: np.ndarray) -> np.ndarray:
+        return self.full.run([OUTPUT_NAME], {INPUT_NAME: tensor[None]})[0]
+
+    def _run_each(self, tensors: np.ndarray) -> np.ndarray:
+        return np.concatenate([self._run_one(t) for t in tensors])
+
+    def _run_split(self, tensors: np.ndarray) -> np.ndarray:
         assert self.backbone is not None and self.head is not None
         outputs = []
-        for start in range(0, len(crops), MAX_BATCH):
-            features = self.backbone.run(self._between, {INPUT_NAME: crops[start : start + MAX_BATCH]})
+        for start in range(0, len(tensors), MAX_BATCH):
+            features = self.backbone.run(self._between, {INPUT_NAME: tensors[start : start + MAX_BATCH]})
             for i in range(len(features[0])):
                 feed = {name: f[i : i + 1] for name, f in zip(self._between, features, strict=True)}
                 outputs.append(self.head.run([OUTPUT_NAME], feed)[0])
         return np.concatenate(outputs)
 
-    def infer(self, crops: np.ndarray) -> np.ndarray:
-        """(N, 17, 3) y, x, score (0..1 over each crop) for (N, S, S, 3) int32 RGB crops."""
-        if len(crops) == 0:
+    def _run_concurrently(self, tensors: np.ndarray) -> np.ndarray:
+        """One crop per thread at a time, each on one core; onnxruntime releases the GIL while it runs."""
+        if self.workers == 1 or len(tensors) == 1:
+            return self._run_each(tensors)
+        return np.concatenate(list(_process_pool(self.workers).map(self._run_one, tensors)))
+
+    def infer(self, crops_rgb: np.ndarray) -> np.ndarray:
+        """(N, 17, 3) y, x, score (0..1 over each crop) for (N, S, S, 3) uint8 RGB crops."""
+        if len(crops_rgb) == 0:
             return np.zeros((0, COCO17_KEYPOINTS, 3), dtype=np.float32)
+        tensors = self.prepare(np.asarray(crops_rgb, dtype=np.uint8))
         if self.batched:
-            raw = self._run_split(crops)
+            raw = self._run_split(tensors)
+        elif self.crop_mode == "concurrent":
+            raw = self._run_concurrently(tensors)
         else:
-            raw = np.concatenate([self.full.run([OUTPUT_NAME], {INPUT_NAME: c[None]})[0] for c in crops])
-        return raw.reshape(len(crops), COCO17_KEYPOINTS, 3)
+            raw = self._run_each(tensors)
+        return raw.reshape(len(crops_rgb), COCO17_KEYPOINTS, 3)
 
     def __call__(self, image_bgr: np.ndarray, boxes_xyxy_px: np.ndarray) -> PoseOutput:
         """Keypoints in image pixels for each box of one image."""
         windows = [crop_window(box) for box in boxes_xyxy_px]
         if not windows:
             return PoseOutput(np.zeros((0, COCO17_KEYPOINTS, 2)), np.zeros((0, COCO17_KEYPOINTS)))
-        crops = np.stack([extract_crop(image_bgr, w, self.input_px) for w in windows]).astype(np.int32)
+        crops = np.stack([extract_crop(image_bgr, w, self.input_px) for w in windows])
         raw = self.infer(crops)
         keypoints = np.stack([w.to_image(r[:, 1::-1]) for w, r in zip(windows, raw, strict=True)])
         return PoseOutput(keypoints_px=keypoints, scores=raw[:, :, 2].astype(np.float64))

@@ -25,6 +25,17 @@ def test_letterbox_places_image_top_left_and_maps_back() -> None:
     np.testing.assert_allclose(tensor[0, :, 10, 10], (0 - MEAN_BGR) / STD_BGR, rtol=1e-6)
 
 
+def test_stride_padded_letterbox_pads_only_to_the_stride() -> None:
+    image = np.random.default_rng(3).integers(0, 256, (1080, 1920, 3), dtype=np.uint8)
+    square, placement = letterbox(image, 640)
+    tensor, same = letterbox(image, 640, square=False)
+    assert tensor.shape == (1, 3, 384, 640) and placement == same
+    np.testing.assert_array_equal(tensor, square[:, :, :384])  # the same pixels, fewer padding rows
+    np.testing.assert_allclose(tensor[0, :, 370, 5], (PAD_VALUE - MEAN_BGR) / STD_BGR, rtol=1e-6)
+    odd, _ = letterbox(image[:1000, :999], 640, square=False)
+    assert odd.shape == (1, 3, 640, 640)  # 999 x 1000: the 639-px side rounds up to the stride
+
+
 def test_letterbox_maps_are_inverse() -> None:
     placement = Letterbox(ratio=0.3125, size_px=640)
     points = np.random.default_rng(1).uniform(0, 2000, (50, 2))
