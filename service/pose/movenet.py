@@ -5,22 +5,24 @@ filling roughly that much of the square), outside-image parts black, resized to 
 (the graph normalises internally). Corners and side are whole pixels so that the map back,
 `image = corner + normalised * side`, is exact and testable.
 
-Batching: the converted graphs declare input [1, H, W, 3], and making the batch dimension symbolic is not enough:
-the decoding head hard-codes batch 1 (Reshape to [1, 64, 64, 1], GatherND indices with a leading 0, Reshape to
-[17, 17, -1]), so the edited graph fails at its first Reshape. The backbone (all the convolutions, nearly all the
-arithmetic) is batch-agnostic, though. So, when the `onnx` package is importable, the graph is split in memory at the
-first Reshape: the backbone runs once on all crops with a symbolic batch dimension, and the cheap head runs per
-crop on its slice of the backbone's outputs. The split is checked at load time against the untouched graph on a
-fixed input (they must agree to float rounding, or the loader falls back to the plain per-crop loop); the shared
-files are never modified.
+Preamble: the converted graphs take int32 NHWC RGB and start with six elementwise nodes (cast, unstack, x * 1/127.5
+- 1, transpose to NCHW) that cost onnxruntime as much as a dozen convolutions. When the `onnx` package is present,
+the graph is rebuilt in memory without them and numpy does the same float32 arithmetic on all crops at once; the
+rebuilt graph is checked at load time against the untouched file on fixed crops (bit-identical in practice, or
+the untouched graph is used). The shared files are never modified.
 
-Measured (`posemetry bench pose` and per-crop timings, 2-core Xeon @ 2.5 GHz, onnxruntime 1.31, batched and loop
-runs interleaved): batching 15-20 crops is no faster than the loop for either model, at 1 or 2 threads (the
-differences were within the run-to-run noise, in both directions; best single-thread cost ~42-44 ms per Thunder
-crop and ~12.5 ms per Lightning crop either way). Convolutions on 64x64 feature maps already
-keep the CPU's GEMM kernels busy at batch 1, so there is nothing for a batch to amortise but the ~0.1 ms per-run
-overhead. The pipeline therefore loops by default (no `onnx` import, no split at load time); `batch=True` stays
-for hardware where it may pay (many-core CPUs, GPUs), and the benchmark keeps comparing both.
+Crop modes (measured with `posemetry bench pose` and per-crop CPU times, 2-core Xeon with AVX-512, onnxruntime
+1.32; Thunder ~19 ms and Lightning ~5 ms of one core per crop):
+- `concurrent` (default): crops are handed to a pool of one thread per core, each running a session call on one
+  core (intra-op threads 1). A 1.2 GMAC MobileNetV2 on 64x64 maps splits poorly across cores (2 intra-op threads
+  gave 1.35x on one crop), whereas whole crops in parallel scale ~1.8-1.9x on two cores.
+- `loop`: one crop after another, each on all intra-op threads; the baseline the benchmark compares against.
+- `batched`: the batch dimension cannot just be made symbolic, because the decoding head hard-codes batch 1
+  (Reshape to [1, 64, 64, 1], GatherND indices with a leading 0, Reshape to [17, 17, -1]). So the graph is split
+  at its first Reshape: the batch-agnostic backbone (nearly all the arithmetic) runs on all crops at once with a
+  symbolic batch dimension, the cheap head per crop. It is checked at load time like the trimmed graph. Measured
+  no faster than the loop on CPU (the 64x64 convolutions already keep the GEMM kernels busy at batch 1, so a
+  batch amortises only the ~0.1 ms per-run overhead); kept for hardware where it may pay.
 """
 
 from __future__ import annotations
