@@ -31,6 +31,7 @@ import logging
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Final, Literal
 
@@ -167,7 +168,15 @@ class InputNormalisation:
     shift: np.ndarray
 
     def __call__(self, crops_rgb: np.ndarray) -> np.ndarray:
-        """(N, S, S, 3) uint8 RGB to the (N, 3, S, S) float32 tensor the first convolution reads, bit for bit."""
+        """(N, S, S, 3) uint8 RGB to the (N, 3, S, S) float32 tensor the first convolution reads, bit for bit.
+
+        OpenCV's blob builder does the subtract-multiply and the layout change in one pass (~0.2 ms per Thunder
+        crop, a quarter of the equivalent numpy expression); it takes one scale for all channels, which MoveNet has.
+        """
+        if np.ptp(self.scale) == 0 and np.ptp(self.shift) == 0:
+            blob = cv2.dnn.blobFromImages(list(crops_rgb), float(self.scale[0]), mean=tuple(map(float, self.offset)))
+            blob -= self.shift[0]
+            return blob
         normalised = (crops_rgb.astype(np.float32) - self.offset) * self.scale - self.shift
         return np.ascontiguousarray(normalised.transpose(0, 3, 1, 2))
 
@@ -343,6 +352,9 @@ class MoveNet:
                 outputs.append(self.head.run([OUTPUT_NAME], feed)[0])
         return np.concatenate(outputs)
 
+    def _crop_and_run(self, image_bgr: np.ndarray, window: CropWindow) -> np.ndarray:
+        return self._run_one(self.prepare(extract_crop(image_bgr, window, self.input_px)[None])[0])
+
     def _run_concurrently(self, tensors: np.ndarray) -> np.ndarray:
         """One crop per thread at a time, each on one core; onnxruntime releases the GIL while it runs."""
         if self.workers == 1 or len(tensors) == 1:
@@ -367,7 +379,11 @@ class MoveNet:
         windows = [crop_window(box) for box in boxes_xyxy_px]
         if not windows:
             return PoseOutput(np.zeros((0, COCO17_KEYPOINTS, 2)), np.zeros((0, COCO17_KEYPOINTS)))
-        crops = np.stack([extract_crop(image_bgr, w, self.input_px) for w in windows])
-        raw = self.infer(crops)
+        if self.crop_mode == "concurrent" and self.workers > 1 and len(windows) > 1:
+            # Cropping and normalising in the pool too: no serial preprocessing before the first crop runs.
+            raw = np.concatenate(list(_process_pool(self.workers).map(partial(self._crop_and_run, image_bgr), windows)))
+            raw = raw.reshape(len(windows), COCO17_KEYPOINTS, 3)
+        else:
+            raw = self.infer(np.stack([extract_crop(image_bgr, w, self.input_px) for w in windows]))
         keypoints = np.stack([w.to_image(r[:, 1::-1]) for w, r in zip(windows, raw, strict=True)])
         return PoseOutput(keypoints_px=keypoints, scores=raw[:, :, 2].astype(np.float64))

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from service.pose.detector import MEAN_BGR, PAD_VALUE, STD_BGR, Letterbox, decode, letterbox
-from service.pose.movenet import CropWindow, crop_window, extract_crop
+from service.pose.movenet import CropWindow, InputNormalisation, crop_window, extract_crop
 
 
 def test_letterbox_places_image_top_left_and_maps_back() -> None:
@@ -89,3 +89,15 @@ def test_crop_content_lands_where_the_map_says(box: tuple[float, float, float, f
         assert crop[:, :5].max() == 0  # beyond the left edge: black
     if window.y0 + window.side > 1080:
         assert crop[-5:].max() == 0
+
+
+def test_input_normalisation_matches_the_graphs_arithmetic() -> None:
+    """OpenCV's one-pass blob (uniform scale) and the numpy path give (x - offset) * scale - shift, NCHW, exactly."""
+    crops = np.random.default_rng(4).integers(0, 256, (3, 8, 8, 3), dtype=np.uint8)
+    ones = np.ones(3, dtype=np.float32)
+    for offset, scale in ((0 * ones, ones / np.float32(127.5)), (np.float32([1, 2, 3]), np.float32([0.1, 0.2, 0.3]))):
+        normalise = InputNormalisation(offset, scale, ones)
+        expected = ((crops.astype(np.float32) - offset) * scale - ones).transpose(0, 3, 1, 2)
+        tensor = normalise(crops)
+        assert tensor.shape == (3, 3, 8, 8) and tensor.dtype == np.float32 and tensor.flags.c_contiguous
+        np.testing.assert_array_equal(tensor, expected)
