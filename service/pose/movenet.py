@@ -23,6 +23,14 @@ Crop modes (measured with `posemetry bench pose` and per-crop CPU times, 2-core 
   symbolic batch dimension, the cheap head per crop. It is checked at load time like the trimmed graph. Measured
   no faster than the loop on CPU (the 64x64 convolutions already keep the GEMM kernels busy at batch 1, so a
   batch amortises only the ~0.1 ms per-run overhead); kept for hardware where it may pay.
+
+Not done, measured: INT8. onnxruntime's static QDQ quantisation (per-channel s8 weights, u8 activations, MinMax
+calibration on 100-200 Town Centre crops from frames outside the test set, decoding head kept in float) runs a
+Thunder crop in ~14-15 ms instead of ~24 ms (untrimmed graphs), but moves confident keypoints (score > 0.3) by
+3.0 px mean / 7.0 px p95 at the 256-px input and flips 11 % of keypoints across the 0.3 score threshold on
+Town Centre crops (5.3 / 14 px on the atrium camera), while shifting the crop by one image pixel moves the float
+model's by 2.5 / 5.6 px and flips 7 %. Keeping the FPN in float narrows it (2.7 / 6.0 px, 9 %) at ~18 ms a crop,
+no gain left. Not equivalent to the float model, so not used.
 """
 
 from __future__ import annotations
