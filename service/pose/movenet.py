@@ -1,13 +1,12 @@
 """MoveNet SinglePose (Thunder 256 px, Lightning 192 px) on person crops: boxes in, COCO-17 keypoints in pixels out.
 
 Crops: a square centred on the detector box with side 1.25 x the box's longer side (MoveNet was trained on people
-filling roughly that much of the square), outside-image parts black, resized to the model's input, RGB int32 NHWC
-(the graph normalises internally). Corners and side are whole pixels so that the map back,
-`image = corner + normalised * side`, is exact and testable.
+filling roughly that much of the square), outside-image parts black, resized to the model's input, RGB.
+Corners and side are whole pixels so that the map back, `image = corner + normalised * side`, is exact and testable.
 
 Preamble: the converted graphs take int32 NHWC RGB and start with six elementwise nodes (cast, unstack, x * 1/127.5
 - 1, transpose to NCHW) that cost onnxruntime as much as a dozen convolutions. When the `onnx` package is present,
-the graph is rebuilt in memory without them and numpy does the same float32 arithmetic on all crops at once; the
+the graph is rebuilt in memory without them and OpenCV does the same float32 arithmetic in one pass; the
 rebuilt graph is checked at load time against the untouched file on fixed crops (bit-identical in practice, or
 the untouched graph is used). The shared files are never modified.
 
@@ -198,7 +197,7 @@ def _trim_preamble(model_bytes: bytes) -> tuple[bytes, InputNormalisation] | Non
     tf2onnx keeps TF.js's preamble (cast int32 to float, unstack the batch, subtract 0, multiply by 1/127.5,
     subtract 1, NHWC to NCHW) as six elementwise nodes over the whole crop; onnxruntime runs them at ~1.5 ms per
     Thunder crop (~1 ms per Lightning crop, 15 % of its time), as much as a dozen convolutions. The same float32
-    arithmetic in numpy, on all of a frame's crops at once, costs a fraction of that. None when the graph does
+    arithmetic in `InputNormalisation` costs ~0.2 ms. None when the graph does
     not start with exactly that preamble (another conversion): then the untouched graph is used.
     """
     try:
@@ -307,7 +306,7 @@ class MoveNet:
 
     @property
     def trimmed(self) -> bool:
-        """Whether the input preamble runs in numpy (False: the untouched converted graph)."""
+        """Whether the input preamble runs outside the graph (False: the untouched converted graph)."""
         return self.normalise is not None
 
     def prepare(self, crops_rgb: np.ndarray) -> np.ndarray:
@@ -321,7 +320,7 @@ class MoveNet:
         return rng.integers(0, 256, (2, self.input_px, self.input_px, 3)).astype(np.uint8)
 
     def _trim_agrees(self, original: ort.InferenceSession) -> bool:
-        """The trimmed graph with numpy's preamble reproduces the untouched graph on two fixed crops."""
+        """The trimmed graph after `InputNormalisation` reproduces the untouched graph on two fixed crops."""
         crops = self._fixed_crops()
         feeds = ({INPUT_NAME: crop[None].astype(np.int32)} for crop in crops)
         reference = np.concatenate([original.run([OUTPUT_NAME], feed)[0] for feed in feeds])
