@@ -187,7 +187,7 @@ def bench_pose(
     repeats: int = typer.Option(2, min=1, help="Passes over the frames per model and crop mode."),
     threads: int | None = typer.Option(None, min=1, help="Inference threads (default: every core)."),
 ) -> None:
-    """Pose throughput per frame: detector and pose split, Thunder and Lightning, batched crops vs a plain loop."""
+    """Pose throughput per frame: detector and pose split, Thunder and Lightning, concurrent crops vs a plain loop."""
     from service.bench.pose import pose_lines, run_pose_benchmark
     from service.settings import get_settings
 

@@ -139,8 +139,9 @@ class Settings(BaseSettings):
     inference_threads: int | None = Field(
         default=None,
         ge=1,
-        description="CPU threads each onnxruntime session may use. Unset: the number of cores this process may "
-        "run on; lower it when several workers share a machine.",
+        description="Cores pose inference may use: the detector's onnxruntime threads, and how many person crops "
+        "run at once (each on one core). Unset: the number of cores this process may run on; lower it when several "
+        "workers share a machine.",
     )
     webhook_max_attempts: int = Field(
         default=12,

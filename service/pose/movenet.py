@@ -1,40 +1,53 @@
 """MoveNet SinglePose (Thunder 256 px, Lightning 192 px) on person crops: boxes in, COCO-17 keypoints in pixels out.
 
 Crops: a square centred on the detector box with side 1.25 x the box's longer side (MoveNet was trained on people
-filling roughly that much of the square), outside-image parts black, resized to the model's input, RGB int32 NHWC
-(the graph normalises internally). Corners and side are whole pixels so that the map back,
-`image = corner + normalised * side`, is exact and testable.
+filling roughly that much of the square), outside-image parts black, resized to the model's input, RGB.
+Corners and side are whole pixels so that the map back, `image = corner + normalised * side`, is exact and testable.
 
-Batching: the converted graphs declare input [1, H, W, 3], and making the batch dimension symbolic is not enough:
-the decoding head hard-codes batch 1 (Reshape to [1, 64, 64, 1], GatherND indices with a leading 0, Reshape to
-[17, 17, -1]), so the edited graph fails at its first Reshape. The backbone (all the convolutions, nearly all the
-arithmetic) is batch-agnostic, though. So, when the `onnx` package is importable, the graph is split in memory at the
-first Reshape: the backbone runs once on all crops with a symbolic batch dimension, and the cheap head runs per
-crop on its slice of the backbone's outputs. The split is checked at load time against the untouched graph on a
-fixed input (they must agree to float rounding, or the loader falls back to the plain per-crop loop); the shared
-files are never modified.
+Preamble: the converted graphs take int32 NHWC RGB and start with six elementwise nodes (cast, unstack, x * 1/127.5
+- 1, transpose to NCHW) that cost onnxruntime as much as a dozen convolutions. When the `onnx` package is present,
+the graph is rebuilt in memory without them and OpenCV does the same float32 arithmetic in one pass; the
+rebuilt graph is checked at load time against the untouched file on fixed crops (bit-identical in practice, or
+the untouched graph is used). The shared files are never modified.
 
-Measured (`posemetry bench pose` and per-crop timings, 2-core Xeon @ 2.5 GHz, onnxruntime 1.31, batched and loop
-runs interleaved): batching 15-20 crops is no faster than the loop for either model, at 1 or 2 threads (the
-differences were within the run-to-run noise, in both directions; best single-thread cost ~42-44 ms per Thunder
-crop and ~12.5 ms per Lightning crop either way). Convolutions on 64x64 feature maps already
-keep the CPU's GEMM kernels busy at batch 1, so there is nothing for a batch to amortise but the ~0.1 ms per-run
-overhead. The pipeline therefore loops by default (no `onnx` import, no split at load time); `batch=True` stays
-for hardware where it may pay (many-core CPUs, GPUs), and the benchmark keeps comparing both.
+Crop modes (measured with `posemetry bench pose` and per-crop CPU times, 2-core Xeon with AVX-512, onnxruntime
+1.32; Thunder ~19 ms and Lightning ~5 ms of one core per crop):
+- `concurrent` (default): crops are handed to a pool of one thread per core, each running a session call on one
+  core (intra-op threads 1). A 1.2 GMAC MobileNetV2 on 64x64 maps splits poorly across cores (2 intra-op threads
+  gave 1.35x on one crop), whereas whole crops in parallel scale ~1.8-1.9x on two cores.
+- `loop`: one crop after another, each on all intra-op threads; the baseline the benchmark compares against.
+- `batched`: the batch dimension cannot just be made symbolic, because the decoding head hard-codes batch 1
+  (Reshape to [1, 64, 64, 1], GatherND indices with a leading 0, Reshape to [17, 17, -1]). So the graph is split
+  at its first Reshape: the batch-agnostic backbone (nearly all the arithmetic) runs on all crops at once with a
+  symbolic batch dimension, the cheap head per crop. It is checked at load time like the trimmed graph. Measured
+  no faster than the loop on CPU (the 64x64 convolutions already keep the GEMM kernels busy at batch 1, so a
+  batch amortises only the ~0.1 ms per-run overhead); kept for hardware where it may pay.
+
+Not done, measured: INT8. onnxruntime's static QDQ quantisation (per-channel s8 weights, u8 activations, MinMax
+calibration on 100-200 Town Centre crops from frames outside the test set, decoding head kept in float) runs a
+Thunder crop in ~14-15 ms instead of ~24 ms (untrimmed graphs), but moves confident keypoints (score > 0.3) by
+3.0 px mean / 7.0 px p95 at the 256-px input and flips 11 % of keypoints across the 0.3 score threshold on
+Town Centre crops (5.3 / 14 px on the atrium camera), while shifting the crop by one image pixel moves the float
+model's by 2.5 / 5.6 px and flips 7 %. Keeping the FPN in float narrows it (2.7 / 6.0 px, 9 %) at ~18 ms a crop,
+no gain left. Not equivalent to the float model, so not used.
 """
 
 from __future__ import annotations
 
 import logging
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
-from typing import Final
+from typing import Final, Literal
 
 import cv2
 import numpy as np
+import onnxruntime as ort
 
 from .model_files import POSE_INPUT_PX, PoseModelName
-from .sessions import make_session
+from .sessions import default_threads, make_session
 from .types import COCO17_KEYPOINTS
 
 log = logging.getLogger(__name__)
@@ -47,6 +60,8 @@ OUTPUT_NAME: Final = "output_0"
 MAX_BATCH: Final = 32
 # Largest difference allowed between the split and the original graph's outputs (0..1 coordinates and scores).
 SPLIT_TOLERANCE: Final = 1e-5
+CropMode = Literal["concurrent", "batched", "loop"]
+CROP_MODES: Final[tuple[CropMode, ...]] = ("concurrent", "batched", "loop")
 
 
 @dataclass(frozen=True)
@@ -77,13 +92,16 @@ def extract_crop(image_bgr: np.ndarray, window: CropWindow, out_px: int) -> np.n
     """(out_px, out_px, 3) uint8 RGB: the window, black where it leaves the image, resized (area filter downwards)."""
     height, width = image_bgr.shape[:2]
     side = window.side
-    square = np.zeros((side, side, 3), dtype=np.uint8)
     x_lo, y_lo = max(window.x0, 0), max(window.y0, 0)
     x_hi, y_hi = min(window.x0 + side, width), min(window.y0 + side, height)
-    if x_hi > x_lo and y_hi > y_lo:
-        square[y_lo - window.y0 : y_hi - window.y0, x_lo - window.x0 : x_hi - window.x0] = image_bgr[
-            y_lo:y_hi, x_lo:x_hi
-        ]
+    if (x_hi - x_lo, y_hi - y_lo) == (side, side):
+        square = image_bgr[y_lo:y_hi, x_lo:x_hi]  # inside the image: resized straight from a view, no copy
+    else:
+        square = np.zeros((side, side, 3), dtype=np.uint8)
+        if x_hi > x_lo and y_hi > y_lo:
+            square[y_lo - window.y0 : y_hi - window.y0, x_lo - window.x0 : x_hi - window.x0] = image_bgr[
+                y_lo:y_hi, x_lo:x_hi
+            ]
     interpolation = cv2.INTER_AREA if side > out_px else cv2.INTER_LINEAR
     resized = cv2.resize(square, (out_px, out_px), interpolation=interpolation)
     return cv2.cvtColor(resized, cv2.COLOR_BGR2RGB)
@@ -148,74 +166,231 @@ def _split_graph(model_bytes: bytes) -> tuple[bytes, bytes, list[str]] | None:
     return backbone.SerializeToString(), head.SerializeToString(), between
 
 
+@dataclass(frozen=True)
+class InputNormalisation:
+    """What the converted graph's preamble does to the int32 RGB NHWC crop: `(x - offset) * scale - shift`, NCHW."""
+
+    offset: np.ndarray
+    scale: np.ndarray
+    shift: np.ndarray
+
+    def __call__(self, crops_rgb: np.ndarray) -> np.ndarray:
+        """(N, S, S, 3) uint8 RGB to the (N, 3, S, S) float32 tensor the first convolution reads, bit for bit.
+
+        OpenCV's blob builder does the subtract-multiply and the layout change in one pass (~0.2 ms per Thunder
+        crop, a quarter of the equivalent numpy expression); it takes one scale for all channels, which MoveNet has.
+        """
+        if np.ptp(self.scale) == 0 and np.ptp(self.shift) == 0:
+            blob = cv2.dnn.blobFromImages(list(crops_rgb), float(self.scale[0]), mean=tuple(map(float, self.offset)))
+            blob -= self.shift[0]
+            return blob
+        normalised = (crops_rgb.astype(np.float32) - self.offset) * self.scale - self.shift
+        return np.ascontiguousarray(normalised.transpose(0, 3, 1, 2))
+
+
+PREAMBLE_OPS: Final = ("Cast", "Split", "Sub", "Mul", "Sub", "Transpose")
+
+
+def _trim_preamble(model_bytes: bytes) -> tuple[bytes, InputNormalisation] | None:
+    """The graph starting at its first convolution (input: normalised float NCHW), and the normalisation it skips.
+
+    tf2onnx keeps TF.js's preamble (cast int32 to float, unstack the batch, subtract 0, multiply by 1/127.5,
+    subtract 1, NHWC to NCHW) as six elementwise nodes over the whole crop; onnxruntime runs them at ~1.5 ms per
+    Thunder crop (~1 ms per Lightning crop, 15 % of its time), as much as a dozen convolutions. The same float32
+    arithmetic in `InputNormalisation` costs ~0.2 ms. None when the graph does
+    not start with exactly that preamble (another conversion): then the untouched graph is used.
+    """
+    try:
+        import onnx
+        from onnx import numpy_helper
+    except ImportError:
+        return None
+    model = onnx.load_from_string(model_bytes)
+    nodes = list(model.graph.node)
+    ops = tuple(node.op_type for node in nodes[: len(PREAMBLE_OPS) + 1])
+    if ops != (*PREAMBLE_OPS, "Conv"):
+        return None
+    cast, split, sub, mul, sub_1, transpose = nodes[: len(PREAMBLE_OPS)]
+    chained = [cast.input[0] == INPUT_NAME, split.input[0] == cast.output[0], sub.input[0] == split.output[0]]
+    chained += [mul.input[0] == sub.output[0], sub_1.input[0] == mul.output[0], transpose.input[0] == sub_1.output[0]]
+    perm = next((list(a.ints) for a in transpose.attribute if a.name == "perm"), None)
+    inits = {init.name: init for init in model.graph.initializer}
+    constants = [inits.get(node.input[1]) for node in (sub, mul, sub_1)]
+    if not all(chained) or perm != [0, 3, 1, 2] or any(c is None for c in constants):
+        return None
+    offset, scale, shift = (numpy_helper.to_array(c).astype(np.float32).reshape(-1) for c in constants)  # type: ignore[arg-type]
+    conv_input = transpose.output[0]
+    if sum(conv_input in n.input for n in nodes) != 1:
+        return None
+    size = [d.dim_value for d in model.graph.input[0].type.tensor_type.shape.dim]  # [1, S, S, 3]
+    del model.graph.node[: len(PREAMBLE_OPS)]
+    for name_list in (n.input for n in model.graph.node):
+        for k, name in enumerate(name_list):
+            if name == conv_input:
+                name_list[k] = INPUT_NAME
+    del model.graph.input[:]
+    model.graph.input.append(
+        onnx.helper.make_tensor_value_info(INPUT_NAME, onnx.TensorProto.FLOAT, [size[0], 3, size[1], size[2]])
+    )
+    used = {name for node in model.graph.node for name in node.input}
+    kept = [init for init in model.graph.initializer if init.name in used]
+    del model.graph.initializer[:]
+    model.graph.initializer.extend(kept)
+    del model.graph.value_info[:]
+    return model.SerializeToString(), InputNormalisation(offset, scale, shift)
+
+
+def _process_pool(workers: int) -> ThreadPoolExecutor:
+    """This process's crop threads (rebuilt in a forked child: an inherited pool's threads do not exist there)."""
+    key = (os.getpid(), workers)
+    pool = _POOLS.get(key)
+    if pool is None:
+        pool = _POOLS[key] = ThreadPoolExecutor(workers, thread_name_prefix="movenet-crop")
+    return pool
+
+
+_POOLS: dict[tuple[int, int], ThreadPoolExecutor] = {}
+
+
 class MoveNet:
-    """One MoveNet SinglePose model; crops batched through a split graph when possible, else one run per crop."""
+    """One MoveNet SinglePose model on a frame's person crops, in one of three `CropMode`s (see the module notes)."""
 
     def __init__(
-        self, model_path: Path, pose_model: PoseModelName, *, threads: int | None = None, batch: bool = False
+        self,
+        model_path: Path,
+        pose_model: PoseModelName,
+        *,
+        threads: int | None = None,
+        crops: CropMode = "concurrent",
     ) -> None:
+        if crops not in CROP_MODES:
+            raise ValueError(f"unknown crop mode {crops!r}; expected one of {', '.join(CROP_MODES)}")
         self.pose_model = pose_model
         self.input_px = INPUT_PX[pose_model]
+        self.workers = threads or default_threads()
+        self.crop_mode: CropMode = crops
         model_bytes = Path(model_path).read_bytes()
-        self.full = make_session(model_bytes, threads)
+        # Concurrent crops each run on one core; the loop and the batch use the session's intra-op threads.
+        session_threads = 1 if crops == "concurrent" else self.workers
+        self.normalise: InputNormalisation | None = None
+        graph_bytes = model_bytes
+        trimmed = _trim_preamble(model_bytes)
+        if trimmed is not None:
+            self.full = make_session(trimmed[0], session_threads)
+            self.normalise = trimmed[1]
+            if self._trim_agrees(make_session(model_bytes, 1)):
+                graph_bytes = trimmed[0]
+            else:
+                log.warning("%s: trimmed graph disagrees with the original; using the original", pose_model)
+                self.normalise = None
+        if self.normalise is None:
+            self.full = make_session(model_bytes, session_threads)
         self.backbone = self.head = None
         self._between: list[str] = []
-        if batch:
-            split = _split_graph(model_bytes)
+        if crops == "batched":
+            split = _split_graph(graph_bytes)
             if split is None:
                 log.info("%s: graph not splittable here (no `onnx` package?); crops run one at a time", pose_model)
             else:
                 backbone_bytes, head_bytes, self._between = split
-                self.backbone = make_session(backbone_bytes, threads)
-                self.head = make_session(head_bytes, threads)
+                self.backbone = make_session(backbone_bytes, self.workers)
+                self.head = make_session(head_bytes, self.workers)
                 if not self._split_agrees():
                     log.warning("%s: split graph disagrees with the original; crops run one at a time", pose_model)
                     self.backbone = self.head = None
 
     @property
     def batched(self) -> bool:
-        """Whether crops go through the backbone together (False: the plain per-crop loop)."""
+        """Whether crops go through the backbone together (False: one run per crop)."""
         return self.backbone is not None
 
-    def _split_agrees(self) -> bool:
-        """The split graph, run as a batch, reproduces the untouched one (to float rounding) on two fixed crops."""
+    @property
+    def trimmed(self) -> bool:
+        """Whether the input preamble runs outside the graph (False: the untouched converted graph)."""
+        return self.normalise is not None
+
+    def prepare(self, crops_rgb: np.ndarray) -> np.ndarray:
+        """(N, S, S, 3) uint8 RGB crops as the session's input tensor."""
+        if self.normalise is None:
+            return crops_rgb.astype(np.int32)
+        return self.normalise(crops_rgb)
+
+    def _fixed_crops(self) -> np.ndarray:
         rng = np.random.default_rng(0)
-        crops = rng.integers(0, 256, (2, self.input_px, self.input_px, 3)).astype(np.int32)
-        reference = np.concatenate([self.full.run([OUTPUT_NAME], {INPUT_NAME: c[None]})[0] for c in crops])
+        return rng.integers(0, 256, (2, self.input_px, self.input_px, 3)).astype(np.uint8)
+
+    def _trim_agrees(self, original: ort.InferenceSession) -> bool:
+        """The trimmed graph after `InputNormalisation` reproduces the untouched graph on two fixed crops."""
+        crops = self._fixed_crops()
+        feeds = ({INPUT_NAME: crop[None].astype(np.int32)} for crop in crops)
+        reference = np.concatenate([original.run([OUTPUT_NAME], feed)[0] for feed in feeds])
         try:
-            split = self._run_split(crops)
+            trimmed = self._run_each(self.prepare(crops))
+        except Exception:  # an onnxruntime failure of the edited graph means: do not use it
+            log.exception("%s: trimmed graph failed to run", self.pose_model)
+            return False
+        return bool(np.allclose(reference, trimmed, rtol=0.0, atol=SPLIT_TOLERANCE))
+
+    def _split_agrees(self) -> bool:
+        """The split graph, run as a batch, reproduces the whole graph (to float rounding) on two fixed crops."""
+        tensors = self.prepare(self._fixed_crops())
+        reference = self._run_each(tensors)
+        try:
+            split = self._run_split(tensors)
         except Exception:  # an onnxruntime failure of the edited graph means: do not use it
             log.exception("%s: split graph failed to run", self.pose_model)
             return False
         # Different graph optimisations (fusions) of the two graphs round differently: ~2e-7 of the crop side.
         return bool(np.allclose(reference, split, rtol=0.0, atol=SPLIT_TOLERANCE))
 
-    def _run_split(self, crops: np.ndarray) -> np.ndarray:
+    def _run_one(self, tensor: np.ndarray) -> np.ndarray:
+        return self.full.run([OUTPUT_NAME], {INPUT_NAME: tensor[None]})[0]
+
+    def _run_each(self, tensors: np.ndarray) -> np.ndarray:
+        return np.concatenate([self._run_one(t) for t in tensors])
+
+    def _run_split(self, tensors: np.ndarray) -> np.ndarray:
         assert self.backbone is not None and self.head is not None
         outputs = []
-        for start in range(0, len(crops), MAX_BATCH):
-            features = self.backbone.run(self._between, {INPUT_NAME: crops[start : start + MAX_BATCH]})
+        for start in range(0, len(tensors), MAX_BATCH):
+            features = self.backbone.run(self._between, {INPUT_NAME: tensors[start : start + MAX_BATCH]})
             for i in range(len(features[0])):
                 feed = {name: f[i : i + 1] for name, f in zip(self._between, features, strict=True)}
                 outputs.append(self.head.run([OUTPUT_NAME], feed)[0])
         return np.concatenate(outputs)
 
-    def infer(self, crops: np.ndarray) -> np.ndarray:
-        """(N, 17, 3) y, x, score (0..1 over each crop) for (N, S, S, 3) int32 RGB crops."""
-        if len(crops) == 0:
+    def _crop_and_run(self, image_bgr: np.ndarray, window: CropWindow) -> np.ndarray:
+        return self._run_one(self.prepare(extract_crop(image_bgr, window, self.input_px)[None])[0])
+
+    def _run_concurrently(self, tensors: np.ndarray) -> np.ndarray:
+        """One crop per thread at a time, each on one core; onnxruntime releases the GIL while it runs."""
+        if self.workers == 1 or len(tensors) == 1:
+            return self._run_each(tensors)
+        return np.concatenate(list(_process_pool(self.workers).map(self._run_one, tensors)))
+
+    def infer(self, crops_rgb: np.ndarray) -> np.ndarray:
+        """(N, 17, 3) y, x, score (0..1 over each crop) for (N, S, S, 3) uint8 RGB crops."""
+        if len(crops_rgb) == 0:
             return np.zeros((0, COCO17_KEYPOINTS, 3), dtype=np.float32)
+        tensors = self.prepare(np.asarray(crops_rgb, dtype=np.uint8))
         if self.batched:
-            raw = self._run_split(crops)
+            raw = self._run_split(tensors)
+        elif self.crop_mode == "concurrent":
+            raw = self._run_concurrently(tensors)
         else:
-            raw = np.concatenate([self.full.run([OUTPUT_NAME], {INPUT_NAME: c[None]})[0] for c in crops])
-        return raw.reshape(len(crops), COCO17_KEYPOINTS, 3)
+            raw = self._run_each(tensors)
+        return raw.reshape(len(crops_rgb), COCO17_KEYPOINTS, 3)
 
     def __call__(self, image_bgr: np.ndarray, boxes_xyxy_px: np.ndarray) -> PoseOutput:
         """Keypoints in image pixels for each box of one image."""
         windows = [crop_window(box) for box in boxes_xyxy_px]
         if not windows:
             return PoseOutput(np.zeros((0, COCO17_KEYPOINTS, 2)), np.zeros((0, COCO17_KEYPOINTS)))
-        crops = np.stack([extract_crop(image_bgr, w, self.input_px) for w in windows]).astype(np.int32)
-        raw = self.infer(crops)
+        if self.crop_mode == "concurrent" and self.workers > 1 and len(windows) > 1:
+            # Cropping and normalising in the pool too: no serial preprocessing before the first crop runs.
+            raw = np.concatenate(list(_process_pool(self.workers).map(partial(self._crop_and_run, image_bgr), windows)))
+            raw = raw.reshape(len(windows), COCO17_KEYPOINTS, 3)
+        else:
+            raw = self.infer(np.stack([extract_crop(image_bgr, w, self.input_px) for w in windows]))
         keypoints = np.stack([w.to_image(r[:, 1::-1]) for w, r in zip(windows, raw, strict=True)])
         return PoseOutput(keypoints_px=keypoints, scores=raw[:, :, 2].astype(np.float64))

@@ -17,7 +17,7 @@ import numpy as np
 
 from .detector import DEFAULT_INPUT_PX, DEFAULT_SCORE_THRESHOLD, PersonDetector
 from .model_files import PoseModelName, resolve_models
-from .movenet import MoveNet
+from .movenet import CropMode, MoveNet
 from .types import DetectedPerson
 
 if TYPE_CHECKING:
@@ -42,17 +42,24 @@ class TopDownPose:
     detector_input_px: int = DEFAULT_INPUT_PX
     score_threshold: float = DEFAULT_SCORE_THRESHOLD
     threads: int | None = None
-    batch: bool = False
-    """Batch crops through the split graph (movenet.py). Off: measured no faster on CPU (service/bench/pose.py)."""
+    crops: CropMode = "concurrent"
+    """How a frame's person crops run (movenet.py): `concurrent` (default, one crop per core at a time), `loop`
+    (one after another, each on all threads: the plain baseline) or `batched` (split graph; no faster on CPU)."""
+    square_detector_input: bool = False
+    """Pad the detector input to a square instead of to its stride (slower; see detector.letterbox)."""
     name: str = field(init=False)
     last_times: StageTimes = field(init=False, default_factory=StageTimes)
 
     def __post_init__(self) -> None:
         paths = resolve_models(self.model_dir, self.pose_model)
         self.detector = PersonDetector(
-            paths.detector, input_px=self.detector_input_px, score_threshold=self.score_threshold, threads=self.threads
+            paths.detector,
+            input_px=self.detector_input_px,
+            score_threshold=self.score_threshold,
+            threads=self.threads,
+            square=self.square_detector_input,
         )
-        self.movenet = MoveNet(paths.pose, self.pose_model, threads=self.threads, batch=self.batch)
+        self.movenet = MoveNet(paths.pose, self.pose_model, threads=self.threads, crops=self.crops)
         self.name = f"rtmdet-nano@{self.detector_input_px}+movenet-{self.pose_model}"
 
     def __call__(self, image_bgr: np.ndarray) -> list[DetectedPerson]:

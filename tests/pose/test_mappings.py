@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from service.pose.detector import MEAN_BGR, PAD_VALUE, STD_BGR, Letterbox, decode, letterbox
-from service.pose.movenet import CropWindow, crop_window, extract_crop
+from service.pose.movenet import CropWindow, InputNormalisation, crop_window, extract_crop
 
 
 def test_letterbox_places_image_top_left_and_maps_back() -> None:
@@ -23,6 +23,17 @@ def test_letterbox_places_image_top_left_and_maps_back() -> None:
     # Padding: rows below the resized 360-row image hold the normalised 114.
     np.testing.assert_allclose(tensor[0, :, 400, 10], (PAD_VALUE - MEAN_BGR) / STD_BGR, rtol=1e-6)
     np.testing.assert_allclose(tensor[0, :, 10, 10], (0 - MEAN_BGR) / STD_BGR, rtol=1e-6)
+
+
+def test_stride_padded_letterbox_pads_only_to_the_stride() -> None:
+    image = np.random.default_rng(3).integers(0, 256, (1080, 1920, 3), dtype=np.uint8)
+    square, placement = letterbox(image, 640)
+    tensor, same = letterbox(image, 640, square=False)
+    assert tensor.shape == (1, 3, 384, 640) and placement == same
+    np.testing.assert_array_equal(tensor, square[:, :, :384])  # the same pixels, fewer padding rows
+    np.testing.assert_allclose(tensor[0, :, 370, 5], (PAD_VALUE - MEAN_BGR) / STD_BGR, rtol=1e-6)
+    odd, _ = letterbox(image[:1000, :999], 640, square=False)
+    assert odd.shape == (1, 3, 640, 640)  # 999 x 1000: the 639-px side rounds up to the stride
 
 
 def test_letterbox_maps_are_inverse() -> None:
@@ -78,3 +89,15 @@ def test_crop_content_lands_where_the_map_says(box: tuple[float, float, float, f
         assert crop[:, :5].max() == 0  # beyond the left edge: black
     if window.y0 + window.side > 1080:
         assert crop[-5:].max() == 0
+
+
+def test_input_normalisation_matches_the_graphs_arithmetic() -> None:
+    """OpenCV's one-pass blob (uniform scale) and the numpy path give (x - offset) * scale - shift, NCHW, exactly."""
+    crops = np.random.default_rng(4).integers(0, 256, (3, 8, 8, 3), dtype=np.uint8)
+    ones = np.ones(3, dtype=np.float32)
+    for offset, scale in ((0 * ones, ones / np.float32(127.5)), (np.float32([1, 2, 3]), np.float32([0.1, 0.2, 0.3]))):
+        normalise = InputNormalisation(offset, scale, ones)
+        expected = ((crops.astype(np.float32) - offset) * scale - ones).transpose(0, 3, 1, 2)
+        tensor = normalise(crops)
+        assert tensor.shape == (3, 3, 8, 8) and tensor.dtype == np.float32 and tensor.flags.c_contiguous
+        np.testing.assert_array_equal(tensor, expected)
