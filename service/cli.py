@@ -413,7 +413,6 @@ def api(
     log_level: str | None = typer.Option(None, help=LOG_LEVEL_HELP),
 ) -> None:
     """Run the HTTP API (uvicorn); the workers run separately (`posemetry worker`)."""
-    import uvicorn
 
     from service.auth.cli import warn_without_admin_key
     from service.observability.multiprocess import ENV
@@ -425,13 +424,20 @@ def api(
     if processes > 1 or os.environ.get(ENV):
         # Each scrape reaches one process, which must answer for all of them.
         _metrics_directory(settings.data_dir / "metrics")
+    _run_api(host, port, processes, settings.log_level)
+
+
+def _run_api(host: str, port: int, processes: int, log_level: str) -> None:
+    """uvicorn on `create_api`, with logging left to the app's own configuration."""
+    import uvicorn
+
     uvicorn.run(
         "service.cli:create_api",
         factory=True,
         host=host,
         port=port,
         workers=processes,
-        log_level=settings.log_level,
+        log_level=log_level,
         log_config=None,
         access_log=False,  # one line per request comes from the app, with its request id
     )
@@ -461,7 +467,6 @@ def serve(
     stops the API, lets the workers finish their current job, then stops Redis. Every process's metrics are
     collected in the data directory's `metrics/` (cleared on start) and served by the API's /metrics.
     """
-    import uvicorn
 
     from service.auth.cli import announce_first_admin_key
     from service.embedded_redis import EmbeddedRedis
@@ -492,16 +497,7 @@ def serve(
         pool.start()
         log.info("%d workers started; API on http://%s:%d", workers, host, port)
         if not stop_signals:
-            uvicorn.run(
-                "service.cli:create_api",
-                factory=True,
-                host=host,
-                port=port,
-                workers=api_processes,
-                log_level=settings.log_level,
-                log_config=None,
-                access_log=False,  # one line per request comes from the app, with its request id
-            )
+            _run_api(host, port, api_processes, settings.log_level)
     finally:
         pool.stop()
         if embedded is not None:

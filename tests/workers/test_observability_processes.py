@@ -12,7 +12,6 @@ import time
 import urllib.request
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session, sessionmaker
@@ -20,32 +19,16 @@ from sqlalchemy.orm import Session, sessionmaker
 from service.queue import CALIBRATION_QUEUE, FRAMES_QUEUE, POSE_QUEUE, QUEUES, RedisDispatcher
 from service.store import Frame
 from tests.scrape import Scrape
+from tests.serving import REPO, Served, clean_environment, free_port, serve, stop, wait_for
 from tests.shared import TOWN_CENTRE, model_dir_path, require_dir
 from tests.workers.conftest import IMAGE_SIZE, simulated_camera, store_frames
 from tests.workers.test_pose_job import store_image
-from tests.workers.test_processes import _free_port, _ready, _stop, _wait_for
-
-REPO = Path(__file__).resolve().parents[2]
-# Sent with every request: ignored without API keys, the admin key where they are enforced.
-ADMIN_KEY = "observability-test-admin-key-0123456789abcdef"
-HEADERS = {"content-type": "application/json", "authorization": f"Bearer {ADMIN_KEY}"}
 
 
-def _request(method: str, url: str, body: Any = None, headers: dict[str, str] | None = None) -> tuple[int, Any]:
-    data = None if body is None else json.dumps(body).encode()
-    request = urllib.request.Request(url, data=data, method=method, headers={**HEADERS, **(headers or {})})
-    try:
-        with urllib.request.urlopen(request, timeout=10) as response:
-            return response.status, json.loads(response.read() or b"null")
-    except urllib.error.HTTPError as exc:
-        return exc.code, json.loads(exc.read() or b"null")
-
-
-def _scrape(url: str) -> Scrape:
-    request = urllib.request.Request(url, headers=HEADERS)
-    with urllib.request.urlopen(request, timeout=10) as response:
-        assert response.status == 200
-        return Scrape(response.read().decode())
+def _scrape(app: Served) -> Scrape:
+    status, body, _type = app.raw("GET", "/metrics")
+    assert status == 200
+    return Scrape(body.decode())
 
 
 def _pids_with_files(directory: Path) -> set[str]:
@@ -55,43 +38,34 @@ def _pids_with_files(directory: Path) -> set[str]:
 def test_serve_exports_every_process_and_logs_json_under_request_ids(
     tmp_path: Path, sessions: sessionmaker[Session]
 ) -> None:
-    env = {k: v for k, v in os.environ.items() if not k.startswith(("POSEMETRY_", "PROMETHEUS_"))}
-    env.update(POSEMETRY_CALIBRATION_MIN_PEOPLE="30", POSEMETRY_ADMIN_KEY=ADMIN_KEY)
     data_dir = tmp_path / "serve"
     stale = data_dir / "metrics" / "counter_4242.db"  # left by an earlier run: must not be added to this one's
     stale.parent.mkdir(parents=True)
     stale.write_bytes(b"\0" * 64)
-    port = _free_port()
-    base = f"http://127.0.0.1:{port}"
-    stderr = (tmp_path / "serve.log").open("w+")
-    command = ["serve", "--data-dir", str(data_dir), "--port", str(port), "--api-processes", "2", "--workers", "1"]
-    serve = subprocess.Popen(
-        [sys.executable, "-m", "service.cli", *command, "--log-format", "json"], cwd=REPO, env=env, stderr=stderr
-    )
+    log_path = tmp_path / "serve.log"
+    args = ["--api-processes", "2", "--workers", "1", "--log-format", "json"]
     posted: dict[str, str] = {}
-    try:
-        _wait_for(lambda: _ready(base), "the API to be ready", serve)
+    with serve(data_dir, clean_environment(calibration_min_people="30"), args, output=log_path) as app:
         assert not stale.exists()
         camera_settings = {"image_width_px": IMAGE_SIZE[0], "image_height_px": IMAGE_SIZE[1], "person_height_m": 1.7}
-        assert _request("PUT", f"{base}/v1/cameras/lobby", camera_settings)[0] == 201
+        assert app.http("PUT", "/v1/cameras/lobby", camera_settings)[0] == 201
         scene = simulated_camera(sessions)  # only its people are used
         for index in range(5):
             tops, bottoms = scene.frame_people()
             people = [{"shoulder": t.tolist(), "ankle": b.tolist()} for t, b in zip(tops, bottoms, strict=True)]
             frame = {"timestamp": f"2026-01-01T12:00:0{index}Z", "people": people}
-            status, body = _request(
-                "POST", f"{base}/v1/cameras/lobby/keypoints", frame, headers={"X-Request-ID": f"serve-req-{index}"}
+            status, body = app.http(
+                "POST", "/v1/cameras/lobby/keypoints", frame, headers={"X-Request-ID": f"serve-req-{index}"}
             )
             assert status == 202, body
             posted[body["frame_id"]] = f"serve-req-{index}"
-
-        def answered() -> bool:
-            return all(_request("GET", f"{base}/v1/cameras/lobby/frames/{f}")[1]["status"] == "done" for f in posted)
-
-        _wait_for(answered, "every frame answered", serve)
+        app.wait_for(
+            lambda: all(app.http("GET", f"/v1/cameras/lobby/frames/{f}")[1]["status"] == "done" for f in posted),
+            "every frame answered",
+        )
         # Each scrape reaches one of the two API processes; each must answer for all processes.
         for _ in range(4):
-            metrics = _scrape(f"{base}/metrics")
+            metrics = _scrape(app)
             posts = metrics.value(
                 "posemetry_http_request_duration_seconds_count",
                 route="/v1/cameras/{camera_id}/keypoints",
@@ -105,17 +79,15 @@ def test_serve_exports_every_process_and_logs_json_under_request_ids(
             solves = metrics.value("posemetry_job_duration_seconds_count", queue=CALIBRATION_QUEUE, outcome="succeeded")
             assert solves >= 1
             assert metrics.value("posemetry_camera_calibrated", camera="lobby") == 1
-            evidence = _request("GET", f"{base}/v1/cameras/lobby")[1]["usable_evidence_count"]
+            evidence = app.http("GET", "/v1/cameras/lobby")[1]["usable_evidence_count"]
             assert metrics.value("posemetry_camera_usable_evidence", camera="lobby") == evidence > 40
             assert metrics.value("posemetry_queue_jobs", queue=FRAMES_QUEUE, state="queued") is not None
             assert metrics.value("posemetry_metrics_source_up", source="redis") == 1
             assert metrics.value("posemetry_http_requests_in_progress") >= 1  # this scrape
         # Two API processes and the worker each write their own files.
         assert len(_pids_with_files(data_dir / "metrics")) >= 3
-    finally:
-        assert _stop(serve) == 0
-    stderr.seek(0)
-    lines = [json.loads(line) for line in stderr.read().splitlines()]  # every line of every process is JSON
+        assert app.stop() == 0
+    lines = [json.loads(line) for line in log_path.read_text().splitlines()]  # every line of every process is JSON
     access = {line["request_id"]: line for line in lines if line["logger"] == "posemetry.access"}
     measured = {line["frame_id"]: line for line in lines if line["logger"] == "workers.jobs" and "frame_id" in line}
     for frame_id, request_id in posted.items():
@@ -136,7 +108,7 @@ def test_a_standalone_forking_worker_serves_its_own_metrics(
     dispatcher.image_stored("town", image_frame)
     metrics_dir = tmp_path / "worker-metrics"
     metrics_dir.mkdir()
-    port = _free_port()
+    port = free_port()
     env = {**os.environ, "PROMETHEUS_MULTIPROC_DIR": str(metrics_dir)}
     queues = [arg for queue in QUEUES for arg in ("--queue", queue)]
     command = [sys.executable, "-m", "service.cli", "worker", *queues, "--fork", "--metrics-port", str(port)]
@@ -149,10 +121,10 @@ def test_a_standalone_forking_worker_serves_its_own_metrics(
             return session.scalar(waiting) == 0 and session.get(Frame, image_frame).status == "pending"
 
     try:
-        _wait_for(all_done, "every frame answered", worker)
-        metrics = _eventually(lambda: _scrape(f"http://127.0.0.1:{port}/metrics"), worker)
+        wait_for(worker, all_done, "every frame answered")
+        metrics = _eventually(lambda: _scrape_port(port), worker)
     finally:
-        assert _stop(worker) == 0
+        assert stop(worker) == 0
     frames_jobs = metrics.value("posemetry_job_duration_seconds_count", queue=FRAMES_QUEUE, outcome="succeeded")
     pose_jobs = metrics.value("posemetry_job_duration_seconds_count", queue=POSE_QUEUE, outcome="succeeded")
     assert frames_jobs >= 2 and pose_jobs == 1
@@ -162,6 +134,12 @@ def test_a_standalone_forking_worker_serves_its_own_metrics(
     assert [s.value for s in inference] == [1.0] and inference[0].labels["model"].startswith("rtmdet-nano")
     # Every job ran in a process of its own, yet their files are one set per worker, not one per job.
     assert _pids_with_files(metrics_dir) == {str(worker.pid), f"{worker.pid}-horse"}
+
+
+def _scrape_port(port: int) -> Scrape:
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=10) as response:
+        assert response.status == 200
+        return Scrape(response.read().decode())
 
 
 def _eventually(scrape: Callable[[], Scrape], process: subprocess.Popen[bytes]) -> Scrape:
