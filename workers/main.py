@@ -73,7 +73,7 @@ MAINTENANCE_LOCK_TTL_S = 60
 
 @dataclass(frozen=True)
 class Requeued:
-    """What the start-up pass handed to the queues."""
+    """What a recovery pass handed to the queues."""
 
     frames: int
     """Cameras whose pending frames were queued for measuring."""
@@ -197,6 +197,9 @@ class _QuietMaintenance(logging.Filter):
         )
 
 
+_QUIET_MAINTENANCE = _QuietMaintenance()
+
+
 def run_worker(
     queues: Sequence[str] = QUEUES,
     *,
@@ -238,7 +241,7 @@ def run_worker(
         maintenance_interval=MAINTENANCE_INTERVAL_S,
         job_monitoring_interval=JOB_HEARTBEAT_S,
     )
-    logging.getLogger("rq.worker").addFilter(_QuietMaintenance())
+    logging.getLogger("rq.worker").addFilter(_QUIET_MAINTENANCE)
     worker.work(burst=burst, logging_level=settings.log_level.upper(), with_scheduler=WEBHOOKS_QUEUE in queues)
     return requeued
 

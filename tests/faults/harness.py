@@ -34,7 +34,7 @@ from rq.registry import StartedJobRegistry
 from service.embedded_redis import redis_server_binary
 from service.geometry.simulate import Scene, SceneConfig, draw_scene
 from service.problems import PROBLEM_MEDIA_TYPE
-from tests.serving import REPO, free_port
+from tests.serving import REPO, free_port, stop
 
 # Generous: a loaded two-core CI machine runs these next to everything else.
 DEADLINE_S = 90.0
@@ -285,13 +285,7 @@ def running(process: subprocess.Popen[bytes]) -> Iterator[subprocess.Popen[bytes
     try:
         yield process
     finally:
-        if process.poll() is None:
-            process.terminate()
-            try:
-                process.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait()
+        stop(process)
 
 
 def api_process(env: dict[str, str]) -> tuple[subprocess.Popen[bytes], str]:

@@ -15,6 +15,7 @@ under it); the API is not: it must ride out both outages.
 from __future__ import annotations
 
 import os
+import subprocess
 import threading
 import time
 from collections.abc import Iterator
@@ -53,7 +54,7 @@ REDIS_DOWN_S = 1.5
 class Stack:
     cluster: PostgresCluster
     redis: RedisServer
-    api: object
+    api: subprocess.Popen[bytes]
     client: Client
     workers: list[Supervised]
     queue_redis: redis.Redis
@@ -157,7 +158,7 @@ def test_redis_restarted_empty_while_frames_stream_in_loses_nothing(stack: Stack
     recovered_at = time.monotonic()
     wait_until(lambda: all_done(client, urls), "every accepted frame measured", timeout_s=RECOVERY_DEADLINE_S)
     print(f"every frame measured {time.monotonic() - recovered_at:.1f} s after the last post")
-    assert stack.api.poll() is None and client.ready()  # type: ignore[attr-defined]
+    assert stack.api.poll() is None and client.ready()
 
 
 def test_postgres_outage_is_503_then_the_interrupted_work_completes_without_restart(stack: Stack) -> None:
