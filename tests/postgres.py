@@ -115,6 +115,11 @@ class PostgresCluster:
             "initdb", "-D", str(self.data_dir), "-U", SUPERUSER, "-A", "trust", "-E", "UTF8", "--locale=C",
             "--no-sync", "--no-instructions",
         )  # fmt: skip
+        self.start_server()
+        return self
+
+    def start_server(self) -> None:
+        """Start the server on the existing cluster (after `start`, or again after `stop_server`)."""
         options = (
             f"-p {self.port} -k {self.socket_dir} -c listen_addresses='' -c fsync=off -c synchronous_commit=off "
             "-c full_page_writes=off -c max_connections=100"
@@ -124,13 +129,17 @@ class PostgresCluster:
             "-o", options,
         )  # fmt: skip
         self._started = True
-        return self
+
+    def stop_server(self, mode: str = "fast") -> None:
+        """Stop the server and keep the cluster (a database outage): `fast` ends every session first, as a
+        restart of the database would; `immediate` is a crash."""
+        self._run("pg_ctl", "stop", "-D", str(self.data_dir), "-m", mode, "-w")
+        self._started = False
 
     def stop(self) -> None:
         try:
             if self._started:
-                self._run("pg_ctl", "stop", "-D", str(self.data_dir), "-m", "immediate", "-w")
-                self._started = False
+                self.stop_server("immediate")
         finally:
             shutil.rmtree(self.root, ignore_errors=True)
 

@@ -1,16 +1,20 @@
 """The RQ jobs: find the people in an image frame (`detect_people`), measure a camera's pending frames
 (`measure_frames`) and solve a camera (`calibrate_camera`).
 
-Measuring and solving are gated per camera (service.queue.CameraGate); all three are safe to run more than once:
-a pose job stores people only while its frame is still `detecting`, a frame's result is
-overwritten and its violation events replaced, and a solve appends a version whose promotion to current follows
-a rule (`at_least_as_supported`), not arrival order. Database transactions are kept short and never span a solve
+Measuring and solving are gated per camera (service.queue.CameraGate); all three are safe to run more than once
+(RQ retries a job whose process died, see service.queue): a pose job stores people only while its frame is still
+`detecting`, a measuring job commits each chunk's results with their violation events and webhook deliveries in
+one transaction and takes only frames still pending, and a solve appends a version whose promotion to current
+follows a rule (`at_least_as_supported`), not arrival order. A job that meets an unavailable database fails (RQ
+retries it at once, in case it was a blip) and asks for the workers' recovery pass, which queues the work again
+once the database answers (workers.recovery). Database transactions are kept short and never span a solve
 or a batch's arithmetic: reads use deferred transactions, and on SQLite every writing transaction holds the one
 write lock, which the API needs to keep storing frames.
 """
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import os
@@ -18,9 +22,11 @@ import time
 import uuid
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from typing import ParamSpec, TypeVar
 
 from rq import get_current_job
 from sqlalchemy import Engine
+from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 
 from service.dispatch import DispatchUnavailableError
@@ -29,6 +35,7 @@ from service.observability.request_id import request_id_context
 from service.queue import CALIBRATION_QUEUE, FRAMES_JOB_BUDGET_S, FRAMES_QUEUE, RedisDispatcher, new_job_id
 from service.settings import Settings, get_settings
 from service.store import CalibrationVersion, Camera, Frame, make_engine, make_session_factory
+from service.store.db import is_database_unavailable
 from service.store.models import clip_reason
 from service.store.repository import (
     CalibrationValues,
@@ -46,6 +53,8 @@ from service.store.repository import (
     sample_evidence,
 )
 from service.webhooks.events import calibration_deliveries, first_attempts, violation_deliveries
+from workers.liveness import PACEMAKER
+from workers.recovery import request_recovery
 
 log = logging.getLogger(__name__)
 
@@ -61,6 +70,8 @@ SKIPPED = "skipped"
 FRAMES_CHUNK = 50
 
 _engines: dict[tuple[int, str], tuple[Engine, sessionmaker[Session], sessionmaker[Session]]] = {}
+_P = ParamSpec("_P")
+_R = TypeVar("_R")
 
 
 def _factories(settings: Settings) -> tuple[sessionmaker[Session], sessionmaker[Session]]:
@@ -138,11 +149,30 @@ def _dispatcher(settings: Settings) -> RedisDispatcher:
     return RedisDispatcher.from_settings(settings)
 
 
-def _gated(kind: str, camera_id: str, work: Callable[[RedisDispatcher, str, bool], str]) -> str:
-    """Run `work(dispatcher, job_id, forced)` in the camera's slot for `kind`, then queue the re-run it owes.
+def _recovers_from_outages(job_function: Callable[_P, _R]) -> Callable[_P, _R]:
+    """A job that meets an unavailable database asks for the workers' recovery pass before it fails, so its work
+    is queued again once the database answers (its own retries come too soon for an outage)."""
+
+    @functools.wraps(job_function)
+    def run(*args: _P.args, **kwargs: _P.kwargs) -> _R:
+        try:
+            return job_function(*args, **kwargs)
+        except SQLAlchemyError as exc:
+            if is_database_unavailable(exc):
+                log.warning("database unavailable (%s): the recovery pass will queue this work again", exc)
+                request_recovery(_dispatcher(get_settings()).connection)
+            raise
+
+    return run
+
+
+def _gated(kind: str, camera_id: str, work: Callable[[RedisDispatcher, bool], str]) -> str:
+    """Run `work(dispatcher, forced)` in the camera's slot for `kind`, then queue the re-run it owes.
 
     The gate guarantees one job of a kind per camera at a time; requests that arrived while this one ran become
-    exactly one re-run, queued when this one finishes (whatever the outcome, hence `finally`).
+    exactly one re-run, queued when this one finishes (whatever the outcome, hence `finally`). While the work
+    runs, the process's heartbeat renews the slot (workers.liveness): if the process dies, the slot lapses within
+    seconds and RQ's retry of this job takes it again.
     """
     dispatcher = _dispatcher(get_settings())
     job = get_current_job()
@@ -151,18 +181,22 @@ def _gated(kind: str, camera_id: str, work: Callable[[RedisDispatcher, str, bool
     ticket = gate.start(camera_id, job_id)
     if not ticket.run:
         return SKIPPED  # another job of this kind runs for the camera; the gate has scheduled a re-run after it
+    completed = False
     try:
-        with log_context(camera_id=camera_id):
-            return work(dispatcher, job_id, ticket.forced)
+        with log_context(camera_id=camera_id), PACEMAKER.beating(lambda: gate.refresh(camera_id, job_id)):
+            outcome = work(dispatcher, ticket.forced)
+        completed = True
+        return outcome
     finally:
         next_job_id = new_job_id(kind, camera_id)
-        if gate.finish(camera_id, job_id, next_job_id):
+        if gate.finish(camera_id, job_id, next_job_id, completed=completed):
             dispatcher.enqueue(kind, camera_id, next_job_id)
 
 
 # --------------------------------------------------------------------------------------------------- pose
 
 
+@_recovers_from_outages
 def detect_people(frame_id: str) -> str:
     """Run pose inference on an image frame, store its people (the image goes unless the camera keeps images),
     then have the camera's pending frames measured.
@@ -178,7 +212,11 @@ def detect_people(frame_id: str) -> str:
         if frame is None:
             return GONE  # its camera was deleted after the frame was queued
         if frame.status != "detecting":
-            return SKIPPED  # a duplicate run: the people are already stored
+            # A duplicate run, or the retry of a run whose process died after storing the people and before it
+            # asked for them to be measured: ask again (deduplicated per camera, so a duplicate costs nothing).
+            if frame.status == "pending":
+                _dispatcher(settings).measure_requested([frame.camera_id])
+            return SKIPPED
         camera = session.get(Camera, frame.camera_id)
         image = frame_image(session, frame_uuid)
         data = None if image is None else image.data
@@ -232,6 +270,7 @@ def _detect(settings: Settings, frame_uuid: uuid.UUID, camera: Camera, data: byt
 # --------------------------------------------------------------------------------------------------- frames
 
 
+@_recovers_from_outages
 def measure_frames(camera_id: str) -> str:
     """Answer the camera's pending frames with its current calibration, a chunk at a time; then nudge a solve.
 
@@ -240,10 +279,10 @@ def measure_frames(camera_id: str) -> str:
     so a camera with a backlog shares the workers with the others.
     """
     settings = get_settings()
-    return _gated(FRAMES_QUEUE, camera_id, lambda d, job_id, _forced: _measure_pending(settings, d, camera_id, job_id))
+    return _gated(FRAMES_QUEUE, camera_id, lambda dispatcher, _: _measure_pending(settings, dispatcher, camera_id))
 
 
-def _measure_pending(settings: Settings, dispatcher: RedisDispatcher, camera_id: str, job_id: str) -> str:
+def _measure_pending(settings: Settings, dispatcher: RedisDispatcher, camera_id: str) -> str:
     from service.results import frame_outcome
 
     deadline = time.monotonic() + FRAMES_JOB_BUDGET_S
@@ -273,7 +312,6 @@ def _measure_pending(settings: Settings, dispatcher: RedisDispatcher, camera_id:
         if time.monotonic() > deadline:
             dispatcher.request(FRAMES_QUEUE, camera_id)  # we are running: this schedules our re-run
             break
-        dispatcher.gates[FRAMES_QUEUE].refresh(camera_id, job_id)
     if calibration_due(
         camera, min_people=settings.calibration_min_people, growth_factor=settings.calibration_growth_factor
     ):
@@ -330,15 +368,14 @@ def at_least_as_supported(new: CalibrationValues, current: CalibrationVersion) -
     return new_fx <= current_fx and _normal_std_deg(new.normal_std_deg) <= _normal_std_deg(current.normal_std_deg)
 
 
+@_recovers_from_outages
 def calibrate_camera(camera_id: str, forced: bool = False) -> str:
     """Solve a camera on a capped, spatially balanced sample of its evidence; deduplicated per camera."""
     settings = get_settings()
     return _gated(
         CALIBRATION_QUEUE,
         camera_id,
-        lambda dispatcher, _job_id, ticket_forced: _solve(
-            settings, dispatcher, camera_id, forced=forced or ticket_forced
-        ),
+        lambda dispatcher, ticket_forced: _solve(settings, dispatcher, camera_id, forced=forced or ticket_forced),
     )
 
 

@@ -1,15 +1,18 @@
 """The worker process: `posemetry worker --queue frames --queue calibration` (or `python -m workers.main`).
 
-On start, before taking any job, a worker asks for every camera with pending frames to be measured, for a
-solve of every camera whose evidence calls for one, and for the next attempt of every pending webhook delivery
-(at its time). The API stores first and enqueues second, so anything accepted while Redis was down (or lost with
-a Redis that was wiped) is still in SQL; this start-up pass hands it to the queues again. Requests are
-deduplicated per camera, and delivery attempts by job id, so every worker may do it and several workers starting
-together do not multiply work.
+On start, before taking any job, and then again from time to time (workers.recovery), a worker runs the recovery
+pass: it asks for every calibrated camera with pending frames to be measured, for pose on every image frame
+still waiting for it, for a solve of every camera whose evidence calls for one, and for the next attempt of every
+pending webhook delivery (at its time). The API stores first and enqueues second, so anything accepted while
+Redis was down (or lost with a Redis that was wiped, or left behind by a job that failed while the database was
+down) is still in SQL; this pass hands it to the queues again. Requests are deduplicated per camera, and pose and
+delivery attempts by job id, so every worker may do it and several workers starting together do not multiply work.
+
+Every few seconds (MAINTENANCE_INTERVAL_S) a worker also runs RQ's registry maintenance, which retries jobs
+whose process died (their heartbeat stopped: workers.liveness), and the recovery pass when it is due.
 
 A worker serving the `webhooks` queue also runs RQ's scheduler (retries wait in its scheduled-job registry;
-RQ elects one scheduler per queue among the workers). Every worker, with RQ's maintenance every ten minutes,
-sweeps SQL for deliveries whose attempt is overdue because queuing it failed (Redis down when a retry was due).
+RQ elects one scheduler per queue among the workers).
 """
 
 from __future__ import annotations
@@ -24,30 +27,53 @@ from datetime import timedelta
 from pathlib import Path
 from typing import Any
 
+import redis
 from rq import Queue
+from sqlalchemy.exc import SQLAlchemyError
 
+from service.dispatch import DispatchUnavailableError
 from service.observability.logs import LOG_FORMATS, configure_logging
 from service.observability.multiprocess import multiprocess_dir, use_directory
-from service.queue import POSE_QUEUE, QUEUES, WEBHOOKS_QUEUE, RedisDispatcher, connect, redis_url, wait_for_redis
+from service.queue import (
+    JOB_HEARTBEAT_S,
+    POSE_QUEUE,
+    QUEUES,
+    WEBHOOKS_QUEUE,
+    RedisDispatcher,
+    connect,
+    redis_url,
+    wait_for_redis,
+)
 from service.settings import Settings, get_settings
 from service.store.models import utc_now
 from service.store.repository import calibration_due, cameras_with_pending_frames, frames_detecting, list_cameras
 from service.store.webhooks import pending_deliveries
 from workers import jobs
 from workers.instrumented import InstrumentedSimpleWorker, InstrumentedWorker
+from workers.liveness import ProvesLiveness, forget_dead_executions
+from workers.recovery import RecoverySchedule, postpone_recovery, request_recovery
 
 log = logging.getLogger(__name__)
 
 # Cameras are read a page at a time.
 _PAGE = 1000
 REDIS_START_TIMEOUT_S = 30.0
-# The sweep leaves alone deliveries whose attempt is due less than this long ago (their job is on its way).
+# The periodic pass leaves alone deliveries whose attempt is due less than this long ago (their job is on its way).
 SWEEP_GRACE_S = 60.0
+# RQ's registry maintenance (abandoned jobs retried, expired entries dropped) every few seconds rather than RQ's
+# ten minutes: a job whose process died is retried this long after its heartbeat lapsed, at most. It costs a few
+# Redis commands per queue. An idle worker blocks on its queues for WORKER_TTL_S - 15 s at a time (RQ's rule),
+# so that sets how soon an idle worker gets to its maintenance.
+MAINTENANCE_INTERVAL_S = 5
+WORKER_TTL_S = 20
+# RQ's lock that keeps workers from cleaning one queue's registries at once; held for milliseconds, it expires
+# after RQ's 15 minutes if its holder is killed mid-clean, which would stall the retries of dead jobs that long.
+MAINTENANCE_LOCK_TTL_S = 60
 
 
 @dataclass(frozen=True)
 class Requeued:
-    """What the start-up pass handed to the queues."""
+    """What a recovery pass handed to the queues."""
 
     frames: int
     """Cameras whose pending frames were queued for measuring."""
@@ -74,11 +100,11 @@ def requeue_deliveries(settings: Settings, dispatcher: RedisDispatcher, *, overd
         after = due[-1].delivery_id
 
 
-def requeue_pending(settings: Settings, dispatcher: RedisDispatcher) -> Requeued:
-    """Request measuring for cameras with pending frames, and due calibrations (see the module docstring)."""
+def requeue_pending(settings: Settings, dispatcher: RedisDispatcher, *, periodic: bool = False) -> Requeued:
+    """The recovery pass (see the module docstring); `periodic` leaves alone deliveries that are only just due."""
     factory = jobs.read_session_factory(settings)
     with factory() as session:
-        frames = dispatcher.measure_requested(cameras_with_pending_frames(session))
+        frames = dispatcher.measure_requested(cameras_with_pending_frames(session, calibrated_only=True))
         images = dispatcher.images_pending(frames_detecting(session))
     calibrations = 0
     after: str | None = None
@@ -94,42 +120,84 @@ def requeue_pending(settings: Settings, dispatcher: RedisDispatcher) -> Requeued
                     growth_factor=settings.calibration_growth_factor,
                 )
             ]
+        # A forced solve that has not completed (its job failed, or was lost) is asked for again: the gate still
+        # holds the forced flag, so the new job is forced too.
+        due += [
+            camera_id for camera_id in dispatcher.forced_calibrations([c.id for c in cameras]) if camera_id not in due
+        ]
         for camera_id in due:
             dispatcher.calibration_requested(camera_id, False)
             calibrations += 1
         if len(cameras) < _PAGE:
             break
         after = cameras[-1].id
-    deliveries = requeue_deliveries(settings, dispatcher)
+    deliveries = requeue_deliveries(settings, dispatcher, overdue_only=periodic)
     return Requeued(frames=frames, images=images, calibrations=calibrations, deliveries=deliveries)
 
 
-class _SweepsDeliveries:
-    """Adds the webhook sweep to RQ's periodic maintenance (which runs in the worker, between jobs)."""
+def _log_requeued(requeued: Requeued, when: str) -> None:
+    counts = (requeued.frames, requeued.images, requeued.calibrations, requeued.deliveries)
+    if when == "start" or any(counts):
+        log.info(
+            "%s: requested measuring for %d cameras, pose for %d image frames, %d due calibrations and %d webhook "
+            "attempts",
+            when,
+            *counts,
+        )
+
+
+def recover(settings: Settings, dispatcher: RedisDispatcher, *, periodic: bool) -> Requeued:
+    requeued = requeue_pending(settings, dispatcher, periodic=periodic)
+    _log_requeued(requeued, "recovery pass" if periodic else "start")
+    return requeued
+
+
+class MaintainedQueue(Queue):
+    """RQ's queue with a maintenance lock that a killed worker cannot hold for 15 minutes (MAINTENANCE_LOCK_TTL_S)."""
+
+    def acquire_maintenance_lock(self) -> bool:
+        return bool(self.connection.set(self.registry_cleaning_key, 1, nx=True, ex=MAINTENANCE_LOCK_TTL_S))
+
+
+class _Recovers:
+    """Adds the recovery pass to RQ's maintenance (which runs in the worker, between jobs), and keeps a Redis
+    outage during maintenance from stopping the worker: the dequeue loop then waits for Redis to come back."""
 
     connection: Any
 
     def __init__(self, *args: Any, settings: Settings | None = None, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self.settings = settings or get_settings()
+        dispatcher = RedisDispatcher(self.connection)
+        self.recovery = RecoverySchedule(self.connection, lambda: recover(self.settings, dispatcher, periodic=True))
 
     def run_maintenance_tasks(self) -> None:
-        super().run_maintenance_tasks()  # type: ignore[misc]
         try:
-            queued = requeue_deliveries(self.settings, RedisDispatcher(self.connection), overdue_only=True)
-        except Exception:  # a failed sweep must not stop the worker; the next one tries again
-            log.exception("webhook delivery sweep failed")
-            return
-        if queued:
-            log.warning("sweep: queued %d overdue webhook delivery attempts", queued)
+            forget_dead_executions(self.connection, self.queues)  # type: ignore[attr-defined]
+            super().run_maintenance_tasks()  # type: ignore[misc]
+            self.recovery.run_if_due()
+        except (redis.ConnectionError, redis.TimeoutError) as exc:
+            log.warning("maintenance skipped, Redis unavailable: %s", exc)
 
 
-class SweepingSimpleWorker(_SweepsDeliveries, InstrumentedSimpleWorker):
-    """Jobs in the worker process, measured (workers.instrumented), with the webhook sweep."""
+class RecoveringSimpleWorker(_Recovers, ProvesLiveness, InstrumentedSimpleWorker):
+    """Jobs in the worker process, measured (workers.instrumented) and kept alive (workers.liveness)."""
 
 
-class SweepingWorker(_SweepsDeliveries, InstrumentedWorker):
-    """A forked child per job, measured (workers.instrumented), with the webhook sweep."""
+class RecoveringWorker(_Recovers, ProvesLiveness, InstrumentedWorker):
+    """A forked child per job, measured (workers.instrumented) and kept alive (workers.liveness)."""
+
+
+class _QuietMaintenance(logging.Filter):
+    """RQ logs each registry cleaning at INFO; every few seconds that would drown the job lines. Kept at DEBUG."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not str(record.msg).startswith("Worker %s: cleaning") or logging.getLogger("rq.worker").isEnabledFor(
+            logging.DEBUG
+        )
+
+
+_QUIET_MAINTENANCE = _QuietMaintenance()
 
 
 def run_worker(
@@ -153,20 +221,27 @@ def run_worker(
         jobs.preload_pose(settings)
     connection = connect(redis_url(settings))
     wait_for_redis(connection, timeout_s=REDIS_START_TIMEOUT_S)
-    requeued = requeue_pending(settings, RedisDispatcher(connection))
-    log.info(
-        "requested measuring for %d cameras, pose for %d image frames, %d due calibrations and %d webhook attempts",
-        requeued.frames,
-        requeued.images,
-        requeued.calibrations,
-        requeued.deliveries,
-    )
+    try:
+        requeued = recover(settings, RedisDispatcher(connection), periodic=False)
+        postpone_recovery(connection)
+    except (SQLAlchemyError, DispatchUnavailableError) as exc:
+        # The database (or Redis) is down: start anyway, and let maintenance run the pass once it is back.
+        log.error("start-up recovery pass failed, maintenance will retry it: %s", exc)
+        request_recovery(connection)
+        requeued = Requeued(frames=0, images=0, calibrations=0)
     # Forked children (jobs, RQ's scheduler) must open their own database connections, never inherit the parent's.
     jobs.dispose_engines()
-    worker_class = SweepingWorker if fork else SweepingSimpleWorker
+    worker_class = RecoveringWorker if fork else RecoveringSimpleWorker
     worker = worker_class(
-        [Queue(queue, connection=connection) for queue in queues], connection=connection, name=name, settings=settings
+        [MaintainedQueue(queue, connection=connection) for queue in queues],
+        connection=connection,
+        name=name,
+        settings=settings,
+        worker_ttl=WORKER_TTL_S,
+        maintenance_interval=MAINTENANCE_INTERVAL_S,
+        job_monitoring_interval=JOB_HEARTBEAT_S,
     )
+    logging.getLogger("rq.worker").addFilter(_QUIET_MAINTENANCE)
     worker.work(burst=burst, logging_level=settings.log_level.upper(), with_scheduler=WEBHOOKS_QUEUE in queues)
     return requeued
 

@@ -17,7 +17,7 @@ from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 from starlette.concurrency import run_in_threadpool
 
-from service.problems import ProblemError
+from service.problems import UNAVAILABLE_HEADERS, ProblemError
 from service.store import keys as stored_keys
 from service.store.models import ApiKey
 
@@ -111,7 +111,10 @@ class Authenticator:
         except SQLAlchemyError as exc:
             log.warning("API key look-up failed: %s", exc)
             raise ProblemError(
-                503, "database-unavailable", "The database is unreachable, so the API key cannot be checked."
+                503,
+                "database-unavailable",
+                "The database is unreachable, so the API key cannot be checked.",
+                headers=UNAVAILABLE_HEADERS,
             ) from exc
         if key is None or not digests_match(key.token_digest, digest):
             raise unauthenticated("Unknown API key.", token_given=True)

@@ -11,7 +11,7 @@ from sqlalchemy.orm import Session
 
 from service.dispatch import UNAVAILABLE_ERRORS, Dispatcher
 from service.keypoints import person_from_centres, person_from_keypoints
-from service.problems import ProblemError, field_errors
+from service.problems import UNAVAILABLE_HEADERS, ProblemError, field_errors
 from service.schemas import CAMERA_ID_PATTERN, PersonObservation
 from service.settings import Settings
 from service.store import repository
@@ -79,7 +79,8 @@ def require_camera(session: Session, camera_id: str) -> Camera:
 
 def queue_unavailable(action: str, exc: BaseException, **extensions: Any) -> ProblemError:
     """503 for work that needs the queue; what the request stored stays stored."""
-    return ProblemError(503, "queue-unavailable", f"The work queue is unreachable ({exc}); {action}", **extensions)
+    detail = f"The work queue is unreachable ({exc}); {action}"
+    return ProblemError(503, "queue-unavailable", detail, headers=UNAVAILABLE_HEADERS, **extensions)
 
 
 def nudge_best_effort(action: str, call: Any, *args: Any, **kwargs: Any) -> None:

@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from sqlalchemy import Engine, create_engine, event
+from sqlalchemy import exc as sa_exc
 from sqlalchemy.engine import URL, make_url
 from sqlalchemy.orm import Session, sessionmaker
 from sqlalchemy.pool import StaticPool
@@ -41,6 +42,9 @@ SQLITE_POOL_SIZE = 48
 WRITE_POLL_S = 0.0005
 # Connection-record flag: this connection's transaction holds the engine's in-process write lock.
 _HOLDS_WRITE_LOCK = "posemetry_holds_write_lock"
+# How long opening a PostgreSQL connection may take: a database host that drops packets would otherwise hold a
+# request (or a job) for the operating system's TCP timeout, minutes, before it can be answered 503.
+POSTGRES_CONNECT_TIMEOUT_S = 10
 
 
 class EncodedJSON(str):
@@ -56,6 +60,15 @@ def _json_dumps(value: Any) -> str:
     if isinstance(value, EncodedJSON):
         return str(value)
     return json.dumps(value, allow_nan=False, separators=(",", ":"))
+
+
+def is_database_unavailable(exc: BaseException) -> bool:
+    """Whether an error means the database cannot be used right now (down, restarting, unreachable, locked past the
+    busy timeout, read-only, out of pooled connections), rather than that a statement was wrong: the API answers
+    the first kind with 503 and the workers retry it; the second kind is a bug."""
+    if isinstance(exc, sa_exc.OperationalError | sa_exc.InterfaceError | sa_exc.TimeoutError):
+        return True
+    return isinstance(exc, sa_exc.DBAPIError) and exc.connection_invalidated
 
 
 def normalise_url(url: str | URL) -> URL:
@@ -81,7 +94,10 @@ def make_engine(url: str | URL, *, busy_timeout_s: float = 30.0, echo: bool = Fa
         return _sqlite_engine(parsed, busy_timeout_s=busy_timeout_s, echo=echo)
     if backend == "postgresql":
         # pre-ping: a restarted or briefly unreachable database costs one failed request, not a restart.
-        return create_engine(parsed, echo=echo, pool_pre_ping=True, json_serializer=_json_dumps)
+        connect_args = {} if "connect_timeout" in parsed.query else {"connect_timeout": POSTGRES_CONNECT_TIMEOUT_S}
+        return create_engine(
+            parsed, echo=echo, pool_pre_ping=True, json_serializer=_json_dumps, connect_args=connect_args
+        )
     raise ValueError(f"unsupported database {parsed.render_as_string(hide_password=True)}: use sqlite or postgresql")
 
 
@@ -135,6 +151,11 @@ def _sqlite_engine(url: URL, *, busy_timeout_s: float, echo: bool) -> Engine:
         connection.info[_HOLDS_WRITE_LOCK] = True
         try:
             _begin_immediate(connection.connection.driver_connection, busy_timeout_s)
+        except sqlite3.Error as exc:
+            _release(connection)
+            # Raised from an event hook, the driver's error would reach callers unwrapped; as SQLAlchemy's own
+            # type it is handled like any other ("database is locked" past the busy timeout: unavailable).
+            raise sa_exc.OperationalError("BEGIN IMMEDIATE", None, exc) from exc
         except BaseException:
             _release(connection)
             raise

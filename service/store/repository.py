@@ -759,10 +759,16 @@ def pending_frames(session: Session, camera_id: str | None = None, *, limit: int
     return list(session.scalars(stmt))
 
 
-def cameras_with_pending_frames(session: Session) -> list[str]:
-    """Cameras that have frames waiting to be measured (a starting worker's re-enqueue pass)."""
-    stmt = select(Frame.camera_id).where(Frame.status == "pending").distinct().order_by(Frame.camera_id)
-    return list(session.scalars(stmt))
+def cameras_with_pending_frames(session: Session, *, calibrated_only: bool = False) -> list[str]:
+    """Cameras that have frames waiting to be measured (the workers' recovery pass); with `calibrated_only`, only
+    those with a current calibration (the others' frames are measured when their first solve becomes current)."""
+    stmt = select(Frame.camera_id).where(Frame.status == "pending")
+    if calibrated_only:
+        current = select(CalibrationVersion.id).where(
+            CalibrationVersion.camera_id == Frame.camera_id, CalibrationVersion.is_current == true()
+        )
+        stmt = stmt.where(current.exists())
+    return list(session.scalars(stmt.distinct().order_by(Frame.camera_id)))
 
 
 def set_frame_result(
