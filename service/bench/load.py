@@ -71,6 +71,7 @@ _EXPECTED = {POST_KEYPOINTS: 202, POST_IMAGE: 202}
 IMAGE_SIZE_PX = (1920, 1080)  # the Town Centre frames
 BACKLOG_EVERY_S = 1.0
 MAX_SEND_LAG_S = 1.0
+LOOP_PROBE_S = 0.01
 WEBHOOK_PATH = "/hook"
 LOOPBACK = "127.0.0.0/8"
 _TRANSPORT_ERRORS = (HttpError, OSError, TimeoutError)
@@ -143,6 +144,7 @@ class LoadResult:
     webhooks: WebhookCounts | None
     profiles: dict[str, ProfileSummary] = field(default_factory=dict)
     profiler_cpu_s: float = 0.0
+    client_loop_lag_s: list[float] = field(default_factory=list)  # the client's event loop: how late it woke
     worker_restarts: int = 0
     notes: list[str] = field(default_factory=list)
 
@@ -225,6 +227,7 @@ class LoadRun:
         self._webhook_ids: set[str] = set()
         self._webhook_secret = ""
         self.frames_posted = [0] * options.keypoint_cameras
+        self.loop_lag_s: list[float] = []
         # The measured window, in loop time: empty and open-ended until the warm-up is over.
         self.t0 = math.inf
         self.t1 = math.inf
@@ -422,6 +425,16 @@ class LoadRun:
         await self._every(GET_METRICS, self.options.metrics_every_s, 0.0, scrape)
         connection.close()
 
+    async def watch_loop(self) -> None:
+        """How late the client's own event loop wakes up (a 10 ms sleep, over and over, through the window): a
+        starved or saturated client shows here, whatever the server does."""
+        loop = asyncio.get_running_loop()
+        while loop.time() < self.t1:
+            before = loop.time()
+            await asyncio.sleep(LOOP_PROBE_S)
+            if self.in_window(before):
+                self.loop_lag_s.append(loop.time() - before - LOOP_PROBE_S)
+
     async def sample_backlog(self, until: asyncio.Event) -> None:
         if self.target.database_url is None:
             return
@@ -604,6 +617,7 @@ class LoadRun:
         total = len(self.keypoint_ids)
         progress(f"measuring for {options.seconds:g} s ({calibrated}/{total} cameras calibrated)")
         scraper = asyncio.create_task(self.prometheus())
+        probe = asyncio.create_task(self.watch_loop())
         await asyncio.sleep(options.seconds)
         roles_after = self._roles()
         cpu_end = CpuSnapshot.take(roles_after)
@@ -613,7 +627,7 @@ class LoadRun:
         connection.close()
 
         progress(f"window over; waiting up to {options.drain_s:g} s for the workers to catch up")
-        await asyncio.gather(*clients, scraper)  # what is in flight
+        await asyncio.gather(*clients, scraper, probe)  # what is in flight
         caught_up_after_s = None
         while loop.time() - self.t1 < options.drain_s:
             if self.caught_up(since=self.t1):
@@ -653,6 +667,7 @@ class LoadRun:
             webhooks=self.webhooks,
             profiles=profiles,
             profiler_cpu_s=profiler.cpu_s if profiler is not None else 0.0,
+            client_loop_lag_s=self.loop_lag_s,
             worker_restarts=len({p.pid for p in roles_after.get(WORKERS, [])} - worker_pids),
         )
 
