@@ -180,6 +180,99 @@ def bench_ingest(
             raise typer.Exit(code)
 
 
+@bench_app.command("load")
+def bench_load(
+    seconds: float = typer.Option(60.0, min=1.0, help="Measured window, after the warm-up."),
+    warmup: float = typer.Option(10.0, min=0.0, help="Least warm-up, in seconds; it also waits for calibrations."),
+    cameras: int = typer.Option(50, min=1, help="Cameras posting keypoint frames, each its own simulated scene."),
+    fps: float = typer.Option(6.0, min=0.01, help="Keypoint frames per second per camera (open loop)."),
+    people: int = typer.Option(20, min=1, help="Walking people per camera (all in every frame)."),
+    payload: str = typer.Option("coco17", help="Person format: coco17 (17 keypoints) or centres (shoulder/ankle)."),
+    image_cameras: int = typer.Option(3, min=0, help="Cameras posting Town Centre JPEGs (0: no pose work)."),
+    image_fps: float = typer.Option(0.2, min=0.01, help="JPEGs per second per image camera."),
+    dashboards: int = typer.Option(5, min=1, help="Dashboards polling calibration status (one connection each)."),
+    calibration_polls: float = typer.Option(25.0, min=0.0, help="Calibration status polls per second, in all."),
+    distance_queries: float = typer.Option(10.0, min=0.0, help="POST .../distances per second."),
+    follow_every: int = typer.Option(20, min=1, help="Follow one keypoint frame in N to `done` (GET frame)."),
+    webhook_cameras: int = typer.Option(2, min=0, help="Cameras a webhook subscription covers (0: no webhook)."),
+    workers: int = typer.Option(2, min=1, help="Worker processes of the `posemetry serve` under test."),
+    api_processes: int = typer.Option(1, min=1, help="API processes of the `posemetry serve` under test."),
+    database_url: str | None = typer.Option(
+        None, help="Serve on this database (e.g. PostgreSQL) instead of SQLite; with --url: read its backlog."
+    ),
+    url: str | None = typer.Option(None, help="Load an already running deployment (http://HOST:PORT) instead."),
+    admin_key: str | None = typer.Option(
+        None, envvar="POSEMETRY_ADMIN_KEY", help="Admin key of the --url deployment (POSEMETRY_ADMIN_KEY)."
+    ),
+    model_dir: Path | None = typer.Option(None, help="Pose models (default: POSEMETRY_MODEL_DIR, else ../shared)."),
+    images_dir: Path | None = typer.Option(None, help="JPEG frames (default: the Town Centre frames in ../shared)."),
+    seed_frames: int = typer.Option(
+        3, min=0, help="Frames each keypoint camera posts before the load, for a first calibration (0: cold start)."
+    ),
+    seed_images: int = typer.Option(6, min=0, help="The same for each image camera."),
+    max_warmup: float = typer.Option(120.0, min=0.0, help="Longest wait for the cameras' first calibrations."),
+    drain: float = typer.Option(60.0, min=0.0, help="After the window, wait this long for the workers to catch up."),
+    profile: Path | None = typer.Option(None, help="py-spy every API and worker process into this folder."),
+    markdown: Path | None = typer.Option(None, help="Also write the tables as Markdown to this file."),
+    seed: int = typer.Option(0, min=0, help="Seed of the simulated scenes."),
+) -> None:
+    """Mixed load on `posemetry serve`: keypoint cameras, image cameras, dashboards, distance queries, webhooks."""
+    from service.bench.frames import PAYLOADS
+    from service.bench.load import LoadOptions, run_load
+    from service.bench.load_report import footer, header, tables
+    from service.bench.report import markdown_document, to_rich
+
+    if payload not in PAYLOADS:
+        raise typer.BadParameter(f"choose from {', '.join(PAYLOADS)}", param_hint="--payload")
+    options = LoadOptions(
+        seconds=seconds,
+        warmup_s=warmup,
+        max_warmup_s=max_warmup,
+        seed_frames=seed_frames,
+        seed_images=seed_images,
+        drain_s=drain,
+        keypoint_cameras=cameras,
+        keypoint_fps=fps,
+        people=people,
+        payload=payload,
+        image_cameras=image_cameras,
+        image_fps=image_fps,
+        dashboards=dashboards,
+        calibration_polls_per_s=calibration_polls,
+        distance_queries_per_s=distance_queries,
+        follow_every=follow_every,
+        webhook_cameras=min(webhook_cameras, cameras),
+        workers=workers,
+        api_processes=api_processes,
+        database_url=database_url,
+        url=url,
+        admin_key=admin_key if url else None,
+        model_dir=model_dir,
+        images_dir=images_dir,
+        profile_dir=profile,
+        seed=seed,
+    )
+    console = Console()
+    if not console.is_terminal:
+        console = Console(width=_PIPED_WIDTH)
+    log = Console(stderr=True)
+    result = run_load(options, progress=lambda message: log.print(f"[dim]{message}[/dim]", highlight=False))
+    lines, report = header(result), tables(result)
+    console.print("posemetry load benchmark", style="bold")
+    for line in lines:
+        console.print(line, highlight=False)
+    for table in report:
+        console.print()
+        console.print(to_rich(table))
+    console.print()
+    for line in footer(result):
+        console.print(line, highlight=False)
+    if markdown is not None:
+        markdown.parent.mkdir(parents=True, exist_ok=True)
+        markdown.write_text(markdown_document("Load benchmark", [*lines, *footer(result)], report))
+        console.print(f"\nwrote {markdown}", highlight=False)
+
+
 @bench_app.command("pose")
 def bench_pose(
     frames: Path | None = typer.Option(

@@ -20,12 +20,6 @@ from __future__ import annotations
 
 import http.client
 import json
-import os
-import secrets
-import signal
-import socket
-import subprocess
-import sys
 import tempfile
 import threading
 import time
@@ -36,168 +30,16 @@ from pathlib import Path
 
 import numpy as np
 
+from .frames import PAYLOADS, PEOPLE_PER_FRAME, simulated_frames
+from .server import Server, create_cameras, free_port, request
+
+__all__ = ["PAYLOADS", "PEOPLE_PER_FRAME", "IngestResult", "ingest_lines", "run_ingest"]
+
 TARGET_FRAMES_PER_S = 300.0
 TARGET_P99_MS = 100.0
-PEOPLE_PER_FRAME = 20
 FRAMES_PER_CAMERA = 200  # distinct simulated frames per camera, cycled through during the run
-SERVER_START_TIMEOUT_S = 60.0
-SERVER_STOP_TIMEOUT_S = 60.0
-PAYLOADS = ("coco17", "centres")
 
 Progress = Callable[[str], None]
-
-
-# --------------------------------------------------------------------------------------------------- frames
-
-
-def _coco_person(top: np.ndarray, bottom: np.ndarray, rng: np.random.Generator) -> list[list[float]]:
-    """COCO-17 keypoints whose shoulder and ankle centres are `top` and `bottom` (the rest roughly placed)."""
-    body = float(np.hypot(*(bottom - top)))
-    half_width = max(0.12 * body, 2.0)
-    up = (top - bottom) / max(body, 1e-9)
-    keypoints = []
-    for index in range(17):
-        # Head above the shoulders, hips and knees between, elbows and wrists beside; scores all confident.
-        t = {0: 1.25, 1: 1.3, 2: 1.3, 3: 1.27, 4: 1.27, 7: 0.8, 8: 0.8, 9: 0.6, 10: 0.6}.get(index, 0.0)
-        if index in (11, 12):
-            t = 0.5
-        elif index in (13, 14):
-            t = 0.25
-        point = bottom + up * body * t
-        side = -1.0 if index % 2 else 1.0
-        keypoints.append([float(point[0] + side * half_width), float(point[1]), float(rng.uniform(0.6, 0.99))])
-    # The four points the service uses: exact pairs around the simulated centres.
-    for left, right, centre in ((5, 6, top), (15, 16, bottom)):
-        keypoints[left][:2] = [float(centre[0] - half_width), float(centre[1])]
-        keypoints[right][:2] = [float(centre[0] + half_width), float(centre[1])]
-    return keypoints
-
-
-def simulated_frames(
-    camera_count: int, frames_per_camera: int, payload: str, seed: int
-) -> tuple[dict[str, object], list[list[bytes]]]:
-    """One camera configuration (PUT body) and a list of ready-encoded frame bodies per camera."""
-    from service.geometry.simulate import SceneConfig, draw_scene
-
-    rng = np.random.default_rng(seed)
-    config = SceneConfig.surveillance(n_people=PEOPLE_PER_FRAME * frames_per_camera)
-    width, height = config.image_size
-    camera_body: dict[str, object] = {
-        "image_width_px": width,
-        "image_height_px": height,
-        "person_height_m": config.height_mean_m,
-    }
-    bodies: list[list[bytes]] = []
-    for _ in range(camera_count):
-        scene = draw_scene(config, rng)
-        frames = []
-        for index in range(frames_per_camera):
-            people = []
-            for person in range(index * PEOPLE_PER_FRAME, (index + 1) * PEOPLE_PER_FRAME):
-                top, bottom = scene.tops_px[person], scene.bottoms_px[person]
-                if payload == "coco17":
-                    people.append({"keypoints": _coco_person(top, bottom, rng)})
-                else:
-                    people.append({"shoulder": [float(top[0]), float(top[1])], "ankle": [float(bottom[0]), bottom[1]]})
-            frames.append(people)
-        bodies.append([json.dumps({"timestamp": "", "people": people}).encode() for people in frames])
-    return camera_body, bodies
-
-
-# --------------------------------------------------------------------------------------------------- server
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
-def _embedded_env(data_dir: Path, admin_key: str) -> dict[str, str]:
-    """The environment of a `posemetry serve` on its embedded defaults in `data_dir`, whatever this shell sets."""
-    env = {key: value for key, value in os.environ.items() if not key.startswith("POSEMETRY_")}
-    env["POSEMETRY_DATA_DIR"] = str(data_dir)
-    env["POSEMETRY_ADMIN_KEY"] = admin_key
-    return env
-
-
-@dataclass
-class Server:
-    """`posemetry serve` as a subprocess (the command's own code path: `python -m service.cli serve`)."""
-
-    data_dir: Path
-    port: int
-    workers: int
-    api_processes: int = 1
-    admin_key: str = field(default_factory=lambda: secrets.token_hex(32))
-    process: subprocess.Popen[bytes] | None = None
-    log_path: Path | None = None
-
-    def start(self) -> Server:
-        self.log_path = self.data_dir / "serve.log"
-        log = self.log_path.open("wb")
-        command = [sys.executable, "-m", "service.cli", "serve", "--port", str(self.port)]
-        command += ["--workers", str(self.workers), "--api-processes", str(self.api_processes)]
-        command += ["--data-dir", str(self.data_dir), "--log-level", "warning"]
-        self.process = subprocess.Popen(
-            command,
-            env=_embedded_env(self.data_dir, self.admin_key),
-            stdout=log,
-            stderr=subprocess.STDOUT,
-            start_new_session=True,
-        )
-        log.close()
-        deadline = time.monotonic() + SERVER_START_TIMEOUT_S
-        while time.monotonic() < deadline:
-            if self.process.poll() is not None:
-                raise RuntimeError(f"posemetry serve exited with {self.process.returncode}: {self.log_tail()}")
-            try:
-                status, _ = request(self.port, "GET", "/readyz")
-                if status == 200:
-                    return self
-            except OSError:
-                pass
-            time.sleep(0.2)
-        self.stop()
-        raise RuntimeError(f"posemetry serve not ready after {SERVER_START_TIMEOUT_S:.0f} s: {self.log_tail()}")
-
-    def log_tail(self, lines: int = 20) -> str:
-        if self.log_path is None or not self.log_path.exists():
-            return ""
-        return "\n".join(self.log_path.read_text(errors="replace").splitlines()[-lines:])
-
-    def stop(self) -> None:
-        """SIGTERM, as Ctrl-C would: serve stops the API, then its workers, then Redis."""
-        if self.process is None or self.process.poll() is not None:
-            return
-        self.process.send_signal(signal.SIGTERM)
-        try:
-            self.process.wait(timeout=SERVER_STOP_TIMEOUT_S)
-        except subprocess.TimeoutExpired:
-            os.killpg(self.process.pid, signal.SIGKILL)
-            self.process.wait()
-
-
-def request(
-    port: int,
-    method: str,
-    path: str,
-    body: bytes | None = None,
-    connection: http.client.HTTPConnection | None = None,
-    token: str | None = None,
-) -> tuple[int, bytes]:
-    own = connection is None
-    conn = connection or http.client.HTTPConnection("127.0.0.1", port, timeout=30)
-    try:
-        headers = {"content-type": "application/json"} if body is not None else {}
-        if token is not None:
-            headers["authorization"] = f"Bearer {token}"
-        conn.request(method, path, body=body, headers=headers)
-        response = conn.getresponse()
-        return response.status, response.read()
-    finally:
-        if own:
-            conn.close()
 
 
 # --------------------------------------------------------------------------------------------------- ingest
@@ -286,23 +128,12 @@ def run_ingest(
         )
         server.start()
         try:
-            for camera in range(cameras):
-                status, content = request(
-                    server.port,
-                    "PUT",
-                    f"/v1/cameras/bench-{camera}",
-                    json.dumps(camera_body).encode(),
-                    token=server.admin_key,
-                )
-                if status not in (200, 201):
-                    raise RuntimeError(f"PUT camera answered {status}: {content[:300]!r}")
-            key_body = {"name": "bench ingest", "cameras": [f"bench-{c}" for c in range(cameras)]}
-            status, content = request(
-                server.port, "POST", "/v1/keys", json.dumps(key_body).encode(), token=server.admin_key
+            token = create_cameras(
+                server.port,
+                {f"bench-{camera}": camera_body for camera in range(cameras)},
+                admin_key=server.admin_key,
+                key_name="bench ingest",
             )
-            if status != 201:
-                raise RuntimeError(f"POST /v1/keys answered {status}: {content[:300]!r}")
-            token = json.loads(content)["token"]
             result = None
             for phase, duration in (("warm-up", warmup_s), ("measured", seconds)):
                 if duration <= 0:

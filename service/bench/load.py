@@ -1,0 +1,747 @@
+"""Mixed load on `posemetry serve`: `posemetry bench load` (a script that prints figures, not a test).
+
+What runs, on loopback, for a measured window (60 s by default) after a warm-up:
+
+- **Cameras posting keypoints**: 50 cameras, each its own simulated scene (service.geometry.simulate's
+  surveillance preset: its own mounting height, tilt and field of view) with 20 people walking through it
+  (service.bench.frames), each posting COCO-17 frames at 6 frames/s: 300 frames/s in all, the issue's target.
+- **Cameras posting images**: a few cameras posting real Oxford Town Centre JPEGs (1920x1080) at a low rate; the
+  pose workers find the people with the real ONNX models.
+- **Dashboards** polling every camera's calibration status, **distance queries** (`POST .../distances`, keypoints
+  in, metres out, synchronously) and **frame results** (`GET .../frames/{id}`: one keypoint frame in N and every
+  image frame is followed until `done`, which also gives the time from POST to result).
+- **Prometheus** scraping `/metrics`, which also gives queue depths and what the workers' jobs took, by queue.
+- **A webhook subscription** for a couple of cameras, delivered to a local receiver that checks each signature
+  and times each alert from the frame's POST to its arrival (a couple of cameras only: one subscription per
+  camera at this violation rate would be a webhook benchmark, not a picture of mixed load).
+
+**Open loop.** Every client sends on a fixed schedule (cameras do not slow down because the server does), each on
+its own keep-alive connection, one request at a time as a camera gateway would. A closed loop (send the next
+request when the last is answered) would hide the server's slowness by sending less (coordinated omission).
+Latency is measured from the send; how late a request left its schedule (its connection still busy, or the
+client itself behind) is measured apart, and the keypoint table also gives the latency from the schedule.
+
+**The client is measured too.** It is one process with one event loop (uvloop), pre-encoded bodies and a lean
+HTTP client (service.bench.http_client); its CPU time, and that of every other process on the machine, is
+reported next to the server's, so a reader can tell a slow server from a starved one.
+
+Against another deployment (`--url`), the same load runs without the per-process CPU split (and, without
+`--database-url`, without the database backlog).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import math
+import os
+import random
+import secrets
+import tempfile
+import time
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from urllib.parse import urlsplit
+
+import psutil
+
+from .frames import WalkingCamera, walking_cameras
+from .http_client import Connection, HttpError, Response, serve
+from .load_stats import BacklogSample, CpuSnapshot, Followed, KindStats, cpu_split, load_average
+from .metrics_text import MetricSample, delta_by, labelled, parse_metrics
+from .profile import Profiler, ProfileSummary
+from .server import WORKERS, Server, create_cameras, free_port
+
+Progress = Callable[[str], None]
+
+TARGET_FRAMES_PER_S = 300.0
+TARGET_P99_MS = 100.0
+
+POST_KEYPOINTS = "POST keypoints"
+POST_IMAGE = "POST image"
+GET_CALIBRATION = "GET calibration"
+POST_DISTANCES = "POST distances"
+GET_FRAME = "GET frame"
+GET_METRICS = "GET /metrics"
+KINDS = (POST_KEYPOINTS, POST_IMAGE, GET_CALIBRATION, POST_DISTANCES, GET_FRAME, GET_METRICS)
+_EXPECTED = {POST_KEYPOINTS: 202, POST_IMAGE: 202}
+
+IMAGE_SIZE_PX = (1920, 1080)  # the Town Centre frames
+BACKLOG_EVERY_S = 1.0
+MAX_SEND_LAG_S = 1.0
+LOOP_PROBE_S = 0.01
+WEBHOOK_PATH = "/hook"
+LOOPBACK = "127.0.0.0/8"
+_TRANSPORT_ERRORS = (HttpError, OSError, TimeoutError)
+
+
+@dataclass(frozen=True)
+class LoadOptions:
+    seconds: float = 60.0
+    warmup_s: float = 10.0
+    max_warmup_s: float = 120.0  # the warm-up also waits (up to this) for every camera's first calibration
+    drain_s: float = 60.0  # after the window, how long to wait for the workers to catch up
+    keypoint_cameras: int = 50
+    keypoint_fps: float = 6.0
+    people: int = 20
+    payload: str = "coco17"
+    frames_per_camera: int = 120  # distinct simulated frames per camera, walked forwards and back
+    seed_frames: int = 3  # posted per keypoint camera before the load, for a first calibration (0: cold start)
+    seed_images: int = 6  # the same per image camera
+    image_cameras: int = 3
+    image_fps: float = 0.2
+    dashboards: int = 5
+    calibration_polls_per_s: float = 25.0
+    distance_queries_per_s: float = 10.0
+    follow_every: int = 20  # one keypoint frame in N is followed to `done` (every image frame is)
+    follow_poll_s: float = 0.25
+    metrics_every_s: float = 5.0
+    webhook_cameras: int = 2
+    workers: int = 2
+    api_processes: int = 1
+    database_url: str | None = None
+    url: str | None = None  # an already running deployment instead of a `posemetry serve` of our own
+    admin_key: str | None = None
+    model_dir: Path | None = None
+    images_dir: Path | None = None
+    profile_dir: Path | None = None
+    seed: int = 0
+
+    @property
+    def offered_frames_per_s(self) -> float:
+        return self.keypoint_cameras * self.keypoint_fps
+
+
+@dataclass
+class WebhookCounts:
+    received: int = 0
+    by_type: dict[str, int] = field(default_factory=dict)
+    bad_signature: int = 0
+    duplicates: int = 0
+    alert_s: list[float] = field(default_factory=list)  # violation.detected: frame POST to delivery, in window
+
+
+@dataclass
+class LoadResult:
+    options: LoadOptions
+    target: str
+    window_s: float
+    warmup_s: float
+    calibrated_at_start: int
+    kinds: dict[str, KindStats]
+    keypoints_done: Followed
+    images_done: Followed
+    backlog: list[BacklogSample]
+    caught_up_after_s: float | None  # None: still behind when the drain ended
+    queue_depths: list[tuple[float, dict[str, float]]]  # (t_s, {queue: queued jobs})
+    jobs: dict[str, tuple[int, float]]  # queue -> (jobs finished in the window, their wall seconds)
+    webhook_outcomes: dict[str, float]  # delivery attempts in the window by outcome (the service's counter)
+    cpu_s: dict[str, float]
+    load_before: tuple[float, float, float]
+    load_after: tuple[float, float, float]
+    webhooks: WebhookCounts | None
+    profiles: dict[str, ProfileSummary] = field(default_factory=dict)
+    profiler_cpu_s: float = 0.0
+    client_loop_lag_s: list[float] = field(default_factory=list)  # the client's event loop: how late it woke
+    worker_restarts: int = 0
+    notes: list[str] = field(default_factory=list)
+
+
+# --------------------------------------------------------------------------------------------------- target
+
+
+@dataclass
+class Target:
+    """Where the load goes: host and port, keys, and (for a server of our own) its processes and database."""
+
+    host: str
+    port: int
+    admin_key: str
+    server: Server | None = None
+    database_url: str | None = None
+    token: str = ""
+
+
+def _default_shared(*parts: str) -> Path:
+    return Path(__file__).resolve().parents[2].parent.joinpath("shared", *parts)
+
+
+def default_model_dir() -> Path:
+    """POSEMETRY_MODEL_DIR if set, else the checkout's sibling `../shared/models` where it exists."""
+    from service.settings import get_settings
+
+    if os.environ.get("POSEMETRY_MODEL_DIR"):
+        return Path(get_settings().model_dir).expanduser()
+    shared = _default_shared("models")
+    return shared if shared.is_dir() else Path(get_settings().model_dir).expanduser()
+
+
+def default_images_dir() -> Path:
+    return _default_shared("data", "oxford_town_centre", "frames")
+
+
+def _images(options: LoadOptions) -> list[bytes]:
+    if options.image_cameras == 0:
+        return []
+    directory = options.images_dir or default_images_dir()
+    files = sorted(directory.glob("*.jpg"))
+    if not files:
+        raise RuntimeError(f"no JPEG frames in {directory} (--images-dir, or --image-cameras 0)")
+    return [path.read_bytes() for path in files]
+
+
+def _check_models(options: LoadOptions) -> Path:
+    from service.pose.model_files import resolve_models
+    from service.settings import get_settings
+
+    model_dir = options.model_dir or default_model_dir()
+    resolve_models(model_dir, get_settings().pose_model)  # ModelFilesError names every missing or bad file
+    return model_dir
+
+
+# --------------------------------------------------------------------------------------------------- the run
+
+
+class LoadRun:
+    """The clients, the samplers and the bookkeeping of one run, on one event loop."""
+
+    def __init__(self, options: LoadOptions, target: Target, walks: list[WalkingCamera], images: list[bytes]) -> None:
+        self.options = options
+        self.target = target
+        self.walks = walks
+        self.images = images
+        self.rng = random.Random(options.seed)
+        run = secrets.token_hex(2)
+        self.keypoint_ids = [f"load-{run}-kp{index:02d}" for index in range(options.keypoint_cameras)]
+        self.image_ids = [f"load-{run}-img{index}" for index in range(options.image_cameras)]
+        self.kinds = {kind: KindStats(_EXPECTED.get(kind, 200)) for kind in KINDS}
+        self.keypoints_done = Followed()
+        self.images_done = Followed()
+        self.followed: dict[tuple[str, str], tuple[float, bool]] = {}  # (camera, frame id) -> (sent wall, image?)
+        self.backlog: list[BacklogSample] = []  # t_s in loop time until the run ends, then from the window's start
+        self.queue_depths: list[tuple[float, dict[str, float]]] = []
+        self.metrics_at_start: dict[MetricSample, float] = {}
+        self.webhooks = WebhookCounts() if options.webhook_cameras else None
+        self._webhook_ids: set[str] = set()
+        self._webhook_secret = ""
+        self.frames_posted = [0] * options.keypoint_cameras
+        self.loop_lag_s: list[float] = []
+        # The measured window, in loop time: empty and open-ended until the warm-up is over.
+        self.t0 = math.inf
+        self.t1 = math.inf
+        self.wall_t0 = math.inf
+
+    # ------------------------------------------------------------------ bookkeeping
+
+    def in_window(self, scheduled: float) -> bool:
+        return self.t0 <= scheduled < self.t1
+
+    def _connection(self, token: str | None = None) -> Connection:
+        return Connection(self.target.host, self.target.port, token=token or self.target.token)
+
+    async def _send(
+        self,
+        kind: str,
+        connection: Connection,
+        scheduled: float,
+        method: str,
+        path: str,
+        body: bytes | None = None,
+        content_type: bytes = b"application/json",
+    ) -> Response | None:
+        """One request, recorded under `kind` when its schedule falls in the window; None when it got no answer."""
+        loop = asyncio.get_running_loop()
+        sent = loop.time()
+        try:
+            response = await connection.request(method, path, body, content_type)
+        except _TRANSPORT_ERRORS as exc:
+            if self.in_window(scheduled):
+                reason = "timeout" if isinstance(exc, TimeoutError) else type(exc).__name__
+                self.kinds[kind].record_failure(sent - scheduled, loop.time() - sent, reason)
+            return None
+        if self.in_window(scheduled):
+            self.kinds[kind].record(sent - scheduled, loop.time() - sent, response.status)
+        return response
+
+    async def _every(
+        self, kind: str, interval_s: float, phase_s: float, send: Callable[[float, int], Awaitable[None]]
+    ) -> None:
+        """`await send(scheduled, n)` on a fixed schedule (open loop) until the window closes.
+
+        A call that overruns delays the next one (one request at a time per connection), which the next one's
+        send lag shows. A client more than MAX_SEND_LAG_S behind skips the slots it missed, as a camera drops
+        frames it cannot send: otherwise a server that fell behind once would be measured for minutes on a
+        backlog of stale requests. Skipped slots in the window count as errors of `kind`.
+        """
+        loop = asyncio.get_running_loop()
+        scheduled = loop.time() + phase_s
+        n = 0
+        while scheduled < self.t1:
+            delay = scheduled - loop.time()
+            if delay > 0:
+                await asyncio.sleep(delay)
+            elif -delay > MAX_SEND_LAG_S:
+                missed = math.ceil((-delay - MAX_SEND_LAG_S) / interval_s)
+                skipped = [scheduled + i * interval_s for i in range(missed)]
+                self.kinds[kind].skipped += sum(self.in_window(slot) for slot in skipped)
+                scheduled += missed * interval_s
+                n += missed
+                continue
+            await send(scheduled, n)
+            scheduled += interval_s
+            n += 1
+
+    @staticmethod
+    def _timestamp(wall: float) -> str:
+        return datetime.fromtimestamp(wall, UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+
+    # ------------------------------------------------------------------ clients
+
+    async def keypoint_camera(self, index: int) -> None:
+        camera_id, walk = self.keypoint_ids[index], self.walks[index]
+        connection = self._connection()
+        path = f"/v1/cameras/{camera_id}/keypoints"
+        interval = 1.0 / self.options.keypoint_fps
+
+        async def post(scheduled: float, n: int) -> None:
+            sent_wall = time.time()
+            body = b'{"timestamp":"%s","frame_id":"f%06d","people":%s}' % (
+                self._timestamp(sent_wall).encode(),
+                n,
+                walk.frame(n),
+            )
+            response = await self._send(POST_KEYPOINTS, connection, scheduled, "POST", path, body)
+            self.frames_posted[index] = n
+            if response is not None and response.status == 202 and (n + index) % self.options.follow_every == 0:
+                self._follow(camera_id, response, sent_wall, scheduled, image=False)
+
+        await self._every(POST_KEYPOINTS, interval, self.rng.uniform(0, interval), post)
+        connection.close()
+
+    async def image_camera(self, index: int) -> None:
+        camera_id = self.image_ids[index]
+        connection = self._connection()
+        interval = 1.0 / self.options.image_fps
+
+        async def post(scheduled: float, n: int) -> None:
+            sent_wall = time.time()
+            path = f"/v1/cameras/{camera_id}/frames?frame_id=f{n:06d}&timestamp={self._timestamp(sent_wall)}"
+            image = self.images[(n + index * 7) % len(self.images)]
+            response = await self._send(POST_IMAGE, connection, scheduled, "POST", path, image, b"image/jpeg")
+            if response is not None and response.status == 202:
+                self._follow(camera_id, response, sent_wall, scheduled, image=True)
+
+        await self._every(POST_IMAGE, interval, self.rng.uniform(0, interval), post)
+        connection.close()
+
+    def _follow(self, camera_id: str, response: Response, sent_wall: float, scheduled: float, *, image: bool) -> None:
+        if self.in_window(scheduled):
+            frame_id = json.loads(response.body)["frame_id"]
+            self.followed[(camera_id, frame_id)] = (sent_wall, image)
+
+    async def dashboard(self, index: int) -> None:
+        """Polls the calibration status of every camera, round robin, at its share of the polling rate."""
+        cameras = [*self.keypoint_ids, *self.image_ids]
+        connection = self._connection()
+        interval = self.options.dashboards / self.options.calibration_polls_per_s
+
+        async def poll(scheduled: float, n: int) -> None:
+            camera_id = cameras[(n * self.options.dashboards + index) % len(cameras)]
+            await self._send(GET_CALIBRATION, connection, scheduled, "GET", f"/v1/cameras/{camera_id}/calibration")
+
+        await self._every(GET_CALIBRATION, interval, self.rng.uniform(0, interval), poll)
+        connection.close()
+
+    async def distance_queries(self) -> None:
+        """Keypoints in, metres out: a random camera's latest people, measured synchronously."""
+        connection = self._connection()
+
+        async def query(scheduled: float, _n: int) -> None:
+            index = self.rng.randrange(len(self.keypoint_ids))
+            body = b'{"people":%s}' % self.walks[index].frame(self.frames_posted[index])
+            path = f"/v1/cameras/{self.keypoint_ids[index]}/distances"
+            await self._send(POST_DISTANCES, connection, scheduled, "POST", path, body)
+
+        await self._every(POST_DISTANCES, 1.0 / self.options.distance_queries_per_s, 0.0, query)
+        connection.close()
+
+    async def follow_frames(self, until: asyncio.Event) -> None:
+        """GET every followed frame, round after round, until it is done (or `until` is set). The time to `done`
+        is the server's `processed_at` minus the client's send time, so the polling interval does not blur it."""
+        connection = self._connection()
+        loop = asyncio.get_running_loop()
+        while not until.is_set():
+            started = loop.time()
+            for key in list(self.followed):
+                camera_id, frame_id = key
+                path = f"/v1/cameras/{camera_id}/frames/{frame_id}"
+                response = await self._send(GET_FRAME, connection, loop.time(), "GET", path)
+                if response is None or response.status != 200:
+                    continue
+                frame = json.loads(response.body)
+                if frame["status"] not in ("done", "failed"):
+                    continue
+                sent_wall, image = self.followed.pop(key)
+                followed = self.images_done if image else self.keypoints_done
+                if frame["status"] == "failed":
+                    followed.failed += 1
+                else:
+                    followed.done_s.append(datetime.fromisoformat(frame["processed_at"]).timestamp() - sent_wall)
+            try:
+                await asyncio.wait_for(until.wait(), max(self.options.follow_poll_s - (loop.time() - started), 0.0))
+            except TimeoutError:
+                pass
+        for _sent, image in self.followed.values():
+            (self.images_done if image else self.keypoints_done).unfinished += 1
+        connection.close()
+
+    # ------------------------------------------------------------------ samplers
+
+    async def scrape(self, connection: Connection, scheduled: float) -> dict[MetricSample, float] | None:
+        """GET /metrics (recorded as a request kind like any other), keeping the queue depths it reports."""
+        response = await self._send(GET_METRICS, connection, scheduled, "GET", "/metrics")
+        if response is None or response.status != 200:
+            return None
+        samples = parse_metrics(response.body.decode())
+        queued = {
+            labels["queue"]: value
+            for labels, value in labelled(samples, "posemetry_queue_jobs")
+            if labels.get("state") == "queued"
+        }
+        self.queue_depths.append((scheduled - self.t0, queued))
+        return samples
+
+    async def prometheus(self) -> None:
+        """Scrapes /metrics from the window's start, every `metrics_every_s`; the first scrape is the baseline."""
+        connection = self._connection(self.target.admin_key)
+
+        async def scrape(scheduled: float, n: int) -> None:
+            samples = await self.scrape(connection, scheduled)
+            if samples is not None and n == 0:
+                self.metrics_at_start = samples
+
+        await self._every(GET_METRICS, self.options.metrics_every_s, 0.0, scrape)
+        connection.close()
+
+    async def watch_loop(self) -> None:
+        """How late the client's own event loop wakes up (a 10 ms sleep, over and over, through the window): a
+        starved or saturated client shows here, whatever the server does."""
+        loop = asyncio.get_running_loop()
+        while loop.time() < self.t1:
+            before = loop.time()
+            await asyncio.sleep(LOOP_PROBE_S)
+            if self.in_window(before):
+                self.loop_lag_s.append(loop.time() - before - LOOP_PROBE_S)
+
+    async def sample_backlog(self, until: asyncio.Event) -> None:
+        if self.target.database_url is None:
+            return
+        from .backlog import BacklogReader
+
+        reader = BacklogReader(self.target.database_url)
+        loop = asyncio.get_running_loop()
+        try:
+            while not until.is_set():
+                pending, detecting, oldest_age_s = await asyncio.to_thread(reader.read)
+                self.backlog.append(BacklogSample(loop.time(), pending, detecting, oldest_age_s))
+                try:
+                    await asyncio.wait_for(until.wait(), BACKLOG_EVERY_S)
+                except TimeoutError:
+                    pass
+        finally:
+            reader.close()
+
+    def caught_up(self, since: float) -> bool:
+        """No followed frame is still waiting, and the database (where read) showed no backlog after `since`."""
+        if self.followed:
+            return False
+        if self.target.database_url is None:
+            return True
+        last = self.backlog[-1] if self.backlog else None
+        return last is not None and last.t_s >= since and last.pending + last.detecting == 0
+
+    # ------------------------------------------------------------------ webhooks
+
+    def webhook_received(self, _method: str, _path: str, headers: dict[str, str], body: bytes) -> tuple[int, bytes]:
+        from service.webhooks.signing import signature
+
+        assert self.webhooks is not None
+        counts = self.webhooks
+        counts.received += 1
+        message_id = headers.get("webhook-id", "")
+        expected = signature(self._webhook_secret, message_id, int(headers.get("webhook-timestamp", "0")), body)
+        if expected not in headers.get("webhook-signature", "").split():
+            counts.bad_signature += 1
+        if message_id in self._webhook_ids:
+            counts.duplicates += 1
+        self._webhook_ids.add(message_id)
+        event = json.loads(body)
+        counts.by_type[event["type"]] = counts.by_type.get(event["type"], 0) + 1
+        if event["type"] == "violation.detected":
+            # The frame's timestamp is when the client posted it.
+            posted = datetime.fromisoformat(event["data"]["frame"]["timestamp"]).timestamp()
+            if posted >= self.wall_t0:
+                counts.alert_s.append(time.time() - posted)
+        return 204, b""
+
+    async def subscribe_webhook(self) -> asyncio.Server | None:
+        if self.webhooks is None:
+            return None
+        receiver = await serve(self.webhook_received)
+        port = receiver.sockets[0].getsockname()[1]
+        cameras = self.keypoint_ids[: self.options.webhook_cameras]
+        body = {"url": f"http://127.0.0.1:{port}{WEBHOOK_PATH}", "camera_ids": cameras, "description": "bench load"}
+        connection = self._connection(self.target.admin_key)
+        response = await connection.request("POST", "/v1/webhooks", json.dumps(body).encode())
+        connection.close()
+        if response.status != 201:
+            raise RuntimeError(f"POST /v1/webhooks answered {response.status}: {response.body[:300]!r}")
+        self._webhook_secret = json.loads(response.body)["secret"]
+        return receiver
+
+    # ------------------------------------------------------------------ phases
+
+    async def calibrated_cameras(self) -> int:
+        """Keypoint cameras with a calibration (image cameras calibrate as fast as pose finds people: not waited
+        for, but their frames' time to `done` shows it)."""
+        connection = self._connection()
+        calibrated = 0
+        for camera_id in self.keypoint_ids:
+            response = await connection.request("GET", f"/v1/cameras/{camera_id}/calibration")
+            calibrated += response.status == 200 and json.loads(response.body)["status"] == "calibrated"
+        connection.close()
+        return calibrated
+
+    async def _seed_camera(self, camera_id: str, bodies: list[tuple[str, bytes, bytes]]) -> None:
+        connection = self._connection()
+        for path, body, content_type in bodies:
+            response = await connection.request("POST", path, body, content_type)
+            if response.status not in (200, 202):
+                raise RuntimeError(
+                    f"seeding {camera_id}: POST {path} answered {response.status}: {response.body[:300]!r}"
+                )
+        connection.close()
+
+    async def seed(self, progress: Progress) -> None:
+        """Every camera's first frames, then a wait for every camera's first calibration: the window then sees a
+        service in its steady state, not 50 new cameras at once (`seed_frames` 0 skips this: a cold start)."""
+        options = self.options
+        if options.seed_frames == 0:
+            return
+        stamp = self._timestamp(time.time())
+        seeds = []
+        for index, camera_id in enumerate(self.keypoint_ids):
+            path = f"/v1/cameras/{camera_id}/keypoints"
+            bodies = [
+                (
+                    path,
+                    b'{"timestamp":"%s","frame_id":"s%d","people":%s}'
+                    % (stamp.encode(), n, self.walks[index].frame(n)),
+                    b"application/json",
+                )
+                for n in range(options.seed_frames)
+            ]
+            seeds.append(self._seed_camera(camera_id, bodies))
+        for index, camera_id in enumerate(self.image_ids):
+            bodies = [
+                (
+                    f"/v1/cameras/{camera_id}/frames?frame_id=s{n}&timestamp={stamp}",
+                    self.images[(n + index * 7) % len(self.images)],
+                    b"image/jpeg",
+                )
+                for n in range(options.seed_images)
+            ]
+            seeds.append(self._seed_camera(camera_id, bodies))
+        progress(
+            f"seeding: {options.seed_frames} frames per keypoint camera, {options.seed_images} images per image "
+            "camera, then waiting for every camera's first calibration"
+        )
+        await asyncio.gather(*seeds)
+        loop = asyncio.get_running_loop()
+        started = loop.time()
+        total = len(self.keypoint_ids)
+        while await self.calibrated_cameras() < total and loop.time() - started < options.max_warmup_s:
+            await asyncio.sleep(1.0)
+
+    def _clients(self) -> list[asyncio.Task[None]]:
+        options = self.options
+        clients = [self.keypoint_camera(i) for i in range(options.keypoint_cameras)]
+        clients += [self.image_camera(i) for i in range(options.image_cameras)]
+        if options.calibration_polls_per_s > 0:
+            clients += [self.dashboard(i) for i in range(options.dashboards)]
+        if options.distance_queries_per_s > 0:
+            clients.append(self.distance_queries())
+        return [asyncio.create_task(client) for client in clients]
+
+    async def _warm_up(self, progress: Progress) -> tuple[float, int]:
+        """At least `warmup_s` of full load, then until every camera is calibrated (up to `max_warmup_s`)."""
+        options = self.options
+        loop = asyncio.get_running_loop()
+        started = loop.time()
+        progress(f"warm-up: {options.warmup_s:g} s of full load (longer if a camera is not calibrated yet)")
+        await asyncio.sleep(options.warmup_s)
+        total = len(self.keypoint_ids)
+        calibrated = await self.calibrated_cameras()
+        while calibrated < total and loop.time() - started < options.max_warmup_s:
+            await asyncio.sleep(2.0)
+            calibrated = await self.calibrated_cameras()
+        return loop.time() - started, calibrated
+
+    def _roles(self) -> dict[str, list[psutil.Process]]:
+        return self.target.server.processes() if self.target.server is not None else {}
+
+    async def run(self, progress: Progress) -> LoadResult:
+        options = self.options
+        loop = asyncio.get_running_loop()
+        receiver = await self.subscribe_webhook()
+        await self.seed(progress)
+        stop_following, stop_sampling = asyncio.Event(), asyncio.Event()
+        clients = self._clients()
+        samplers = [
+            asyncio.create_task(self.follow_frames(stop_following)),
+            asyncio.create_task(self.sample_backlog(stop_sampling)),
+        ]
+        warmup_s, calibrated = await self._warm_up(progress)
+
+        roles = self._roles()
+        profiler = None
+        if options.profile_dir is not None and roles:
+            profiler = Profiler(options.profile_dir)
+            profiler.start(roles, options.seconds)
+        load_before = load_average()
+        cpu_start = CpuSnapshot.take(roles)
+        self.t0, self.wall_t0 = loop.time(), time.time()
+        self.t1 = self.t0 + options.seconds
+        total = len(self.keypoint_ids)
+        progress(f"measuring for {options.seconds:g} s ({calibrated}/{total} cameras calibrated)")
+        scraper = asyncio.create_task(self.prometheus())
+        probe = asyncio.create_task(self.watch_loop())
+        await asyncio.sleep(options.seconds)
+        roles_after = self._roles()
+        cpu_end = CpuSnapshot.take(roles_after)
+        load_after = load_average()
+        connection = self._connection(self.target.admin_key)
+        metrics_at_end = await self.scrape(connection, loop.time()) or {}
+        connection.close()
+
+        progress(f"window over; waiting up to {options.drain_s:g} s for the workers to catch up")
+        await asyncio.gather(*clients, scraper, probe)  # what is in flight
+        caught_up_after_s = None
+        while loop.time() - self.t1 < options.drain_s:
+            if self.caught_up(since=self.t1):
+                caught_up_after_s = loop.time() - self.t1
+                break
+            await asyncio.sleep(0.25)
+        stop_following.set()
+        stop_sampling.set()
+        await asyncio.gather(*samplers)
+        if receiver is not None:
+            receiver.close()
+        profiles: dict[str, ProfileSummary] = {}
+        if profiler is not None:
+            profiles = await asyncio.to_thread(profiler.finish)
+        for sample in self.backlog:
+            sample.t_s -= self.t0
+        worker_pids = {p.pid for p in roles.get(WORKERS, [])}
+        return LoadResult(
+            options=options,
+            target=f"http://{self.target.host}:{self.target.port}",
+            window_s=options.seconds,
+            warmup_s=warmup_s,
+            calibrated_at_start=calibrated,
+            kinds=self.kinds,
+            keypoints_done=self.keypoints_done,
+            images_done=self.images_done,
+            backlog=self.backlog,
+            caught_up_after_s=caught_up_after_s,
+            queue_depths=self.queue_depths,
+            jobs=_jobs(self.metrics_at_start, metrics_at_end),
+            webhook_outcomes=delta_by(
+                self.metrics_at_start, metrics_at_end, "posemetry_webhook_deliveries_total", "outcome"
+            ),
+            cpu_s=cpu_split(cpu_start, cpu_end),
+            load_before=load_before,
+            load_after=load_after,
+            webhooks=self.webhooks,
+            profiles=profiles,
+            profiler_cpu_s=profiler.cpu_s if profiler is not None else 0.0,
+            client_loop_lag_s=self.loop_lag_s,
+            worker_restarts=len({p.pid for p in roles_after.get(WORKERS, [])} - worker_pids),
+        )
+
+
+def _jobs(start: dict[MetricSample, float], end: dict[MetricSample, float]) -> dict[str, tuple[int, float]]:
+    """Jobs finished per queue in the window, and their wall time, from the job-duration histogram's deltas."""
+    counts = delta_by(start, end, "posemetry_job_duration_seconds_count", "queue")
+    sums = delta_by(start, end, "posemetry_job_duration_seconds_sum", "queue")
+    return {queue: (round(counts[queue]), sums.get(queue, 0.0)) for queue in counts}
+
+
+# --------------------------------------------------------------------------------------------------- entry
+
+
+def _target_for(options: LoadOptions, data_dir: Path, model_dir: Path | None) -> Target:
+    if options.url is not None:
+        parts = urlsplit(options.url)
+        if parts.scheme != "http" or parts.hostname is None:
+            raise ValueError(f"--url must be http://HOST:PORT, got {options.url!r}")
+        if not options.admin_key:
+            raise ValueError("--url needs an admin key (--admin-key or POSEMETRY_ADMIN_KEY)")
+        return Target(parts.hostname, parts.port or 80, options.admin_key, database_url=options.database_url)
+    settings = {}
+    if options.database_url:
+        settings["database_url"] = options.database_url
+    if model_dir is not None:
+        settings["model_dir"] = str(model_dir)
+    if options.webhook_cameras:
+        settings["webhook_allowed_networks"] = LOOPBACK
+    server = Server(data_dir, free_port(), options.workers, options.api_processes, settings)
+    from service.settings import DEFAULT_DATABASE_FILE
+
+    database_url = options.database_url or f"sqlite:///{data_dir / DEFAULT_DATABASE_FILE}"
+    return Target("127.0.0.1", server.port, server.admin_key, server=server, database_url=database_url)
+
+
+def run_load(options: LoadOptions, progress: Progress) -> LoadResult:
+    """Start the server (unless --url), set up cameras, a key and a webhook, run the load, stop the server."""
+    import uvloop
+
+    model_dir = _check_models(options) if options.image_cameras and options.url is None else None
+    images = _images(options)
+    progress(
+        f"simulating {options.keypoint_cameras} cameras x {options.frames_per_camera} frames of "
+        f"{options.people} walking people"
+    )
+    camera_body, walks = walking_cameras(
+        options.keypoint_cameras,
+        options.seed,
+        frames=options.frames_per_camera,
+        fps=options.keypoint_fps,
+        payload=options.payload,
+        people=options.people,
+    )
+    with tempfile.TemporaryDirectory(prefix="posemetry-load-") as tmp:
+        target = _target_for(options, Path(tmp), model_dir)
+        if target.server is not None:
+            progress(
+                f"starting posemetry serve ({options.api_processes} API processes, {options.workers} workers) on "
+                f"port {target.port}, data in {tmp}"
+            )
+            target.server.start()
+        try:
+            run = LoadRun(options, target, walks, images)
+            image_body = {"image_width_px": IMAGE_SIZE_PX[0], "image_height_px": IMAGE_SIZE_PX[1]}
+            cameras = {camera_id: camera_body for camera_id in run.keypoint_ids}
+            cameras |= {camera_id: image_body for camera_id in run.image_ids}
+            target.token = create_cameras(
+                target.port, cameras, admin_key=target.admin_key, key_name="bench load", host=target.host
+            )
+            result = uvloop.run(run.run(progress))
+        finally:
+            if target.server is not None:
+                target.server.stop()
+    if result.worker_restarts:
+        result.notes.append(f"{result.worker_restarts} worker processes were restarted during the window")
+    return result
