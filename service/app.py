@@ -23,7 +23,8 @@ from service.json_body import register_body_schemas
 from service.observability.collectors import SharedStateCollector
 from service.observability.http import RequestTelemetry
 from service.observability.metrics import exposition_registry
-from service.problems import PROBLEM_MEDIA_TYPE, BodyGuard, install_handlers
+from service.problems import PROBLEM_MEDIA_TYPE, BodyGuard, HeaderGuard, install_handlers
+from service.query_params import known_query_only
 from service.routers import (
     calibration,
     cameras,
@@ -132,19 +133,27 @@ def create_app(
     shared_state = SharedStateCollector(app.state.read_session_factory, queue_depths)
     app.state.metrics_registry = exposition_registry([shared_state])
     install_handlers(app)
-    app.add_middleware(BodyGuard, max_body_bytes=settings.max_body_bytes, uploads=(frames.upload_route(settings),))
+    app.add_middleware(
+        BodyGuard,
+        max_body_bytes=settings.max_body_bytes,
+        uploads=(frames.upload_route(settings),),
+        routes=app.router.routes,
+    )
     # A body is not read for a caller without a key.
     public_paths = frozenset(route.path for module in PUBLIC_ROUTERS for route in module.router.routes)
     app.add_middleware(AuthenticateBeforeBody, authenticator=app.state.authenticator, public_paths=public_paths)
+    app.add_middleware(HeaderGuard, max_header_bytes=settings.max_header_bytes)
     # Added last, so outermost: what the key check and the body guard refuse is measured, logged and given a
     # request id too.
     app.add_middleware(RequestTelemetry, route_templates=lambda: app.openapi()["paths"])
     # Protected unless listed as public: a router added to ROUTERS later needs a key without anyone remembering.
     for module in ROUTERS:
         if module in PUBLIC_ROUTERS:
-            app.include_router(module.router)
+            app.include_router(module.router, dependencies=[Depends(known_query_only)])
         else:
-            app.include_router(module.router, dependencies=[Depends(require_key)], responses=AUTH_RESPONSES)
+            app.include_router(
+                module.router, dependencies=[Depends(require_key), Depends(known_query_only)], responses=AUTH_RESPONSES
+            )
     app.webhooks.include_router(webhooks.callbacks)
     register_body_schemas(app, frames.JSON_BODIES)
     return app

@@ -22,6 +22,7 @@ from fastapi.exceptions import RequestValidationError
 from sqlalchemy.exc import SQLAlchemyError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.responses import JSONResponse
+from starlette.routing import BaseRoute, Match
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from service.observability.request_id import HEADER, current_request_id
@@ -143,10 +144,13 @@ def install_handlers(app: FastAPI) -> None:
         detail = exc.detail if isinstance(exc.detail, str) else json.dumps(exc.detail)
         if exc.status_code == 404 and detail == "Not Found":
             detail = f"No such resource: {request.url.path}"
+        headers = exc.headers
         if exc.status_code == 405:
-            detail = f"{request.method} is not allowed on {request.url.path}"
+            allowed = allowed_methods(request.app.router.routes, request.scope)
+            detail = f"{request.method} is not allowed on {request.url.path}; allowed: {', '.join(allowed)}"
+            headers = {**(headers or {}), "Allow": ", ".join(allowed)}
         return problem_response(
-            exc.status_code, kinds.get(exc.status_code, "http-error"), detail, request.url.path, headers=exc.headers
+            exc.status_code, kinds.get(exc.status_code, "http-error"), detail, request.url.path, headers=headers
         )
 
     @app.exception_handler(SQLAlchemyError)
@@ -172,6 +176,21 @@ def install_handlers(app: FastAPI) -> None:
         )
 
 
+def routes_to_endpoint(routes: Sequence[BaseRoute], scope: Scope) -> bool:
+    """Whether some route takes this method on this path (so the request is not a 404 or 405)."""
+    return any(route.matches(scope)[0] == Match.FULL for route in routes)
+
+
+HTTP_METHODS = ("GET", "HEAD", "POST", "PUT", "PATCH", "DELETE", "OPTIONS")
+
+
+def allowed_methods(routes: Sequence[BaseRoute], scope: Scope) -> list[str]:
+    """Every method some route takes on this path. Starlette's 405 names only the first matching route's methods,
+    but a path such as /v1/cameras/{camera_id} is served by three routes (GET, PUT, DELETE), and FastAPI nests
+    included routers, so each method is tried against the whole routing table."""
+    return [method for method in HTTP_METHODS if routes_to_endpoint(routes, {**scope, "method": method})]
+
+
 def _is_json(content_type: str) -> bool:
     media = content_type.split(";", 1)[0].strip().lower()
     return media == "application/json" or (media.startswith("application/") and media.endswith("+json"))
@@ -192,6 +211,33 @@ def _media(content_type: str) -> str:
     return content_type.split(";", 1)[0].strip().lower()
 
 
+class HeaderGuard:
+    """Pure ASGI middleware: refuses a request whose header block exceeds `max_header_bytes` with 431.
+
+    uvicorn's httptools parser (the one `uvicorn[standard]` installs) takes header blocks of any size, so without
+    this a client could make every request carry megabytes of headers through authentication and logging.
+    """
+
+    def __init__(self, app: ASGIApp, max_header_bytes: int) -> None:
+        self.app = app
+        self.max_header_bytes = max_header_bytes
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] == "http":
+            size = sum(len(name) + len(value) + 4 for name, value in scope["headers"])  # "name: value\r\n"
+            if size > self.max_header_bytes:
+                detail = (
+                    f"The request's headers take {size} bytes, over the limit of {self.max_header_bytes} "
+                    "(setting max_header_bytes)."
+                )
+                response = problem_response(
+                    431, "headers-too-large", detail, scope.get("path"), headers={"Connection": "close"}
+                )
+                await response(scope, receive, send)
+                return
+        await self.app(scope, receive, send)
+
+
 class BodyGuard:
     """Pure ASGI middleware: refuses oversize and wrongly typed bodies before anything parses them.
 
@@ -199,15 +245,29 @@ class BodyGuard:
     bytes as they stream, so a chunked or lying client is cut off at the limit too. The body is buffered (it is
     at most the limit) and replayed to the application. Bodies must be JSON, except on `uploads` routes, which
     accept their own media types up to their own limit.
+
+    Requests that no route takes (given the app's `routes`) pass untouched, so an unknown path is a 404 and a method
+    the path does not have a 405, whatever body they carry; their body is never read.
     """
 
-    def __init__(self, app: ASGIApp, max_body_bytes: int, uploads: tuple[UploadRoute, ...] = ()) -> None:
+    def __init__(
+        self,
+        app: ASGIApp,
+        max_body_bytes: int,
+        uploads: tuple[UploadRoute, ...] = (),
+        routes: Sequence[BaseRoute] | None = None,
+    ) -> None:
         self.app = app
         self.max_body_bytes = max_body_bytes
         self.uploads = uploads
+        self.routes = routes
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http" or scope["method"] not in ("POST", "PUT", "PATCH"):
+        if (
+            scope["type"] != "http"
+            or scope["method"] not in ("POST", "PUT", "PATCH")
+            or (self.routes is not None and not routes_to_endpoint(self.routes, scope))
+        ):
             await self.app(scope, receive, send)
             return
         headers = {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope["headers"]}

@@ -12,10 +12,22 @@ Names carry units (`_px`, `_m`, `_deg`, `_s`) so that a client never has to gues
 from __future__ import annotations
 
 import uuid
-from datetime import datetime
+from datetime import UTC, datetime
 from typing import Annotated, Literal
 
-from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import (
+    AfterValidator,
+    AwareDatetime,
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    StrictBool,
+    WithJsonSchema,
+    field_validator,
+    model_validator,
+)
+from pydantic_core import PydanticCustomError
 
 from service.geometry import DEFAULT_HEIGHT_M
 
@@ -25,11 +37,56 @@ COCO_KEYPOINTS = 17
 METRES_PER_FOOT = 0.3048
 MAX_IMAGE_SIDE_PX = 100_000
 
-FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
-Score = Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)]
+
+
+def _not_a_boolean(value: object) -> object:
+    if isinstance(value, bool):
+        raise PydanticCustomError("bool_not_number", "Input should be a number, not true or false")
+    return value
+
+
+# JSON true/false and strings are not numbers, but pydantic's lax mode reads them as numbers (a width of `true`
+# pixels, a score of "0.5"). Strict floats refuse both (in Rust: keypoints hold a thousand per frame); strict
+# integers would also refuse 640.0, which JSON Schema calls an integer, so integers only refuse booleans.
+Number = Annotated[float, Field(strict=True)]
+Integer = Annotated[int, BeforeValidator(_not_a_boolean)]
+FiniteFloat = Annotated[float, Field(allow_inf_nan=False, strict=True)]
+Score = Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False, strict=True)]
 PointPx = tuple[FiniteFloat, FiniteFloat]
 Keypoint = tuple[FiniteFloat, FiniteFloat, Score]
 CameraId = Annotated[str, Field(pattern=CAMERA_ID_PATTERN, examples=["lobby-1"])]
+# Timestamps are RFC 3339 with a zone, or Unix seconds: a JSON number (pydantic reads magnitudes above 2e10 as
+# milliseconds, as JavaScript clients send them) or, in a query string or form, its digits. The JSON schema says
+# exactly that, so that what the contract calls valid is what the API accepts. Every instant must exist in UTC
+# (years 1-9999): "0001-01-01T00:00:00+01:00" is a valid RFC 3339 text for a moment before year 1, and converting
+# it made the store, the violation window and key expiry fail with an OverflowError (a 500) before this check.
+UNIX_SECONDS_TEXT_PATTERN = r"^-?[0-9]{1,13}(\.[0-9]+)?$"
+_UNIX_MS_MIN, _UNIX_MS_END = -62_135_596_800_000, 253_402_300_800_000  # 0001-01-01 and 10000-01-01, in ms
+TIMESTAMP_JSON_SCHEMA = {
+    "anyOf": [
+        {"type": "string", "format": "date-time"},
+        {"type": "number", "minimum": _UNIX_MS_MIN, "exclusiveMaximum": _UNIX_MS_END},
+        {"type": "string", "pattern": UNIX_SECONDS_TEXT_PATTERN},
+    ]
+}
+
+
+def _exists_in_utc(value: datetime) -> datetime:
+    try:
+        value.astimezone(UTC)
+    except OverflowError:
+        raise PydanticCustomError(
+            "timestamp_out_of_range",
+            "{timestamp} is outside the years 1-9999 once converted to UTC",
+            {"timestamp": value.isoformat()},
+        ) from None
+    return value
+
+
+Timestamp = Annotated[AwareDatetime, AfterValidator(_exists_in_utc), WithJsonSchema(TIMESTAMP_JSON_SCHEMA)]
+# In a query string or a form everything is text.
+TIMESTAMP_TEXT_JSON_SCHEMA = {"anyOf": [TIMESTAMP_JSON_SCHEMA["anyOf"][0], TIMESTAMP_JSON_SCHEMA["anyOf"][2]]}
+TimestampText = Annotated[AwareDatetime, AfterValidator(_exists_in_utc), WithJsonSchema(TIMESTAMP_TEXT_JSON_SCHEMA)]
 
 
 class StrictModel(BaseModel):
@@ -45,7 +102,9 @@ class DistanceThreshold(StrictModel):
     """A distance with its unit, because social-distancing rules are written in feet in some places, metres in
     others; the service stores and reports metres."""
 
-    value: float = Field(gt=0, le=1000, allow_inf_nan=False, description="The threshold in `unit`.")
+    # At least a centimetre (or a hundredth of a foot): a positive but tiny value such as 5e-324 ft would round
+    # to 0 m on conversion, which the store rightly refuses.
+    value: Number = Field(ge=0.01, le=1000, allow_inf_nan=False, description="The threshold in `unit`.")
     unit: Literal["m", "ft"] = Field(description="`m` (metres) or `ft` (international feet, 0.3048 m).")
 
     @property
@@ -59,9 +118,9 @@ DEFAULT_DISTANCE_THRESHOLD = DistanceThreshold(value=6, unit="ft")
 class CameraSettings(StrictModel):
     """What a client tells the service about one fixed camera (`PUT /v1/cameras/{camera_id}`)."""
 
-    image_width_px: int = Field(gt=0, le=MAX_IMAGE_SIDE_PX, description="Width of the camera's images in pixels.")
-    image_height_px: int = Field(gt=0, le=MAX_IMAGE_SIDE_PX, description="Height of the camera's images in pixels.")
-    person_height_m: float = Field(
+    image_width_px: Integer = Field(gt=0, le=MAX_IMAGE_SIDE_PX, description="Width of the camera's images in pixels.")
+    image_height_px: Integer = Field(gt=0, le=MAX_IMAGE_SIDE_PX, description="Height of the camera's images in pixels.")
+    person_height_m: Number = Field(
         default=DEFAULT_HEIGHT_M,
         ge=0.3,
         le=2.5,
@@ -69,21 +128,21 @@ class CameraSettings(StrictModel):
         description="Mean height from ankle centre to shoulder centre of the people this camera sees, in metres. "
         f"The default {DEFAULT_HEIGHT_M} m is an adult average (about 0.78 of stature); it sets the metric scale.",
     )
-    equal_focal: bool = Field(
+    equal_focal: StrictBool = Field(
         default=True, description="Assume square pixels (fx = fy); true for almost every modern camera."
     )
     distance_threshold: DistanceThreshold = Field(
         default=DEFAULT_DISTANCE_THRESHOLD,
         description="Pairs of people closer than this are violations. Default 6 ft (1.8288 m).",
     )
-    known_focal_px: float | None = Field(
+    known_focal_px: Number | None = Field(
         default=None,
         gt=0,
         le=1e6,
         allow_inf_nan=False,
         description="The focal length in pixels if known (then only the ground plane is solved).",
     )
-    keep_images: bool = Field(
+    keep_images: StrictBool = Field(
         default=False,
         description="Keep posted images after their people are found, so frame overlays can be drawn. Off by "
         "default (privacy): an image is deleted once its keypoints are stored.",
@@ -118,12 +177,29 @@ class CameraList(BaseModel):
 # --------------------------------------------------------------------------------------------------- frames
 
 
+# The two forms of a person in the JSON schema, so that what the schema calls valid is what the validators accept:
+# `keypoints` (and no centres), or a `shoulder` centre with an optional `ankle` (and no keypoints).
+_ONE_FORM_JSON_SCHEMA = {
+    "anyOf": [
+        {
+            "required": ["keypoints"],
+            "properties": {"keypoints": {"type": "array"}, "shoulder": {"type": "null"}, "ankle": {"type": "null"}},
+        },
+        {"required": ["shoulder"], "properties": {"keypoints": {"type": "null"}, "shoulder": {"type": "array"}}},
+    ]
+}
+
+
 class PersonObservation(StrictModel):
     """One person: either COCO-17 `keypoints` (what pose models emit) or explicit `shoulder`/`ankle` centres."""
+
+    model_config = ConfigDict(extra="forbid", json_schema_extra=_ONE_FORM_JSON_SCHEMA)
 
     keypoints: list[Keypoint] | None = Field(
         default=None,
         description="COCO-17 keypoints in COCO order, each [x_px, y_px, score] with score in [0, 1].",
+        # Documented only: the validator below checks the count with a message that says what COCO-17 means.
+        json_schema_extra={"minItems": COCO_KEYPOINTS, "maxItems": COCO_KEYPOINTS},
     )
     shoulder: PointPx | None = Field(default=None, description="Shoulder centre [x_px, y_px] (centres form).")
     ankle: PointPx | None = Field(
@@ -156,7 +232,7 @@ class PersonObservation(StrictModel):
 class KeypointFrame(StrictModel):
     """One frame of one camera (`POST /v1/cameras/{camera_id}/keypoints`)."""
 
-    timestamp: AwareDatetime = Field(
+    timestamp: Timestamp = Field(
         description="When the frame was captured: RFC 3339 with a time zone, or Unix seconds.",
         examples=["2026-01-01T12:00:00Z"],
     )

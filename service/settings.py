@@ -79,6 +79,12 @@ class Settings(BaseSettings):
         description="Largest request body the API reads, in bytes; larger bodies are rejected with 413 before "
         "they are parsed. The default fits a frame of `max_people_per_frame` people with full COCO-17 keypoints.",
     )
+    max_header_bytes: int = Field(
+        default=32 * 1024,
+        ge=4096,
+        description="Largest header block (all request headers together) the API accepts, in bytes; larger ones "
+        "are refused with 431 before authentication.",
+    )
     max_image_bytes: int = Field(
         default=20 * 1024 * 1024,
         ge=1024,

@@ -14,20 +14,22 @@ from datetime import UTC, datetime
 from typing import Any
 
 from fastapi import Request
-from pydantic import AwareDatetime, TypeAdapter, ValidationError
+from pydantic import TypeAdapter, ValidationError
 from starlette.datastructures import UploadFile
 
 from service.images import JPEG, PNG, sniff_content_type
 from service.problems import ProblemError
-from service.schemas import CLIENT_FRAME_ID_PATTERN
+from service.schemas import CLIENT_FRAME_ID_PATTERN, TIMESTAMP_TEXT_JSON_SCHEMA, TimestampText
 
 MULTIPART = "multipart/form-data"
 IMAGE_TYPES = frozenset({JPEG, PNG})
 UPLOAD_TYPES = frozenset({*IMAGE_TYPES, MULTIPART})
 IMAGE_FIELD = "image"
-# A form carries the image plus two short fields; anything beyond that is refused while parsing.
+FORM_FIELDS = frozenset({IMAGE_FIELD, "timestamp", "frame_id"})
+# A form carries the image plus two short fields; far more than that is refused while parsing, and any field not
+# in FORM_FIELDS after it (like an unknown field of a JSON body: a typo would otherwise be silently ignored).
 MAX_FORM_FIELDS = 4
-_TIMESTAMP = TypeAdapter(AwareDatetime)
+_TIMESTAMP = TypeAdapter(TimestampText)
 
 # The request body as documented in OpenAPI (the route reads the raw request, so FastAPI cannot infer it).
 OPENAPI_REQUEST_BODY: dict[str, Any] = {
@@ -41,9 +43,10 @@ OPENAPI_REQUEST_BODY: dict[str, Any] = {
                 "required": [IMAGE_FIELD],
                 "properties": {
                     IMAGE_FIELD: {"type": "string", "format": "binary", "description": "The JPEG or PNG file."},
-                    "timestamp": {"type": "string", "format": "date-time", "description": "As the query parameter."},
+                    "timestamp": {**TIMESTAMP_TEXT_JSON_SCHEMA, "description": "As the query parameter."},
                     "frame_id": {"type": "string", "pattern": CLIENT_FRAME_ID_PATTERN},
                 },
+                "additionalProperties": False,
             }
         },
     },
@@ -107,6 +110,13 @@ async def read_upload(request: Request, *, timestamp: datetime | None, frame_id:
     except Exception as exc:  # the multipart parser raises several types for malformed forms
         raise _bad(f"Malformed multipart form: {exc}", 400, "bad-request") from exc
     try:
+        unknown = sorted(set(form.keys()) - FORM_FIELDS)
+        if unknown:
+            names = ", ".join(repr(name) for name in unknown)
+            raise _bad(
+                f"Unknown multipart field(s) {names}: the form takes `image`, `timestamp` and `frame_id`.",
+                kind="validation-error",
+            )
         part = form.get(IMAGE_FIELD)
         if not isinstance(part, UploadFile):
             raise _bad(f"The multipart form needs a file field named `{IMAGE_FIELD}`.")

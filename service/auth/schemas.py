@@ -5,9 +5,10 @@ from __future__ import annotations
 from datetime import UTC, datetime
 from typing import Literal
 
-from pydantic import AwareDatetime, BaseModel, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, StrictBool, model_validator
+from pydantic_core import PydanticCustomError
 
-from service.schemas import CameraId, StrictModel
+from service.schemas import CameraId, StrictModel, Timestamp
 from service.store.models import API_KEY_NAME_MAX_LENGTH
 
 from .tokens import TOKEN_FORMAT
@@ -18,13 +19,24 @@ MAX_SCOPED_CAMERAS = 1000
 class KeyCreate(StrictModel):
     """A new key: a name saying who or what holds it, and what it may do."""
 
+    # The schema says what _consistent enforces: an admin key is never limited to cameras.
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "not": {
+                "required": ["admin", "cameras"],
+                "properties": {"admin": {"const": True}, "cameras": {"type": "array"}},
+            }
+        },
+    )
+
     name: str = Field(
         min_length=1,
         max_length=API_KEY_NAME_MAX_LENGTH,
         description="Who or what holds the key (a camera system, a dashboard, a person).",
         examples=["lobby camera gateway"],
     )
-    admin: bool = Field(default=False, description="Admin keys manage keys; they are never limited to cameras.")
+    admin: StrictBool = Field(default=False, description="Admin keys manage keys; they are never limited to cameras.")
     cameras: list[CameraId] | None = Field(
         default=None,
         min_length=1,
@@ -33,7 +45,7 @@ class KeyCreate(StrictModel):
         "key lists only these cameras and gets 403 for any other. Null: every camera.",
         examples=[["lobby-1", "lobby-2"]],
     )
-    expires_at: AwareDatetime | None = Field(
+    expires_at: Timestamp | None = Field(
         default=None, description="When the key stops working (RFC 3339 with zone). Null: never."
     )
 
@@ -42,7 +54,8 @@ class KeyCreate(StrictModel):
         if self.admin and self.cameras is not None:
             raise ValueError("an admin key cannot be limited to cameras: leave `cameras` null, or `admin` false")
         if self.expires_at is not None and self.expires_at <= datetime.now(UTC):
-            raise ValueError("`expires_at` must be in the future")
+            # Its own error type: a rule that depends on the clock, which no schema can state.
+            raise PydanticCustomError("expires_in_past", "`expires_at` must be in the future")
         return self
 
 

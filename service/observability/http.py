@@ -90,7 +90,8 @@ class RequestTelemetry:
 
     def _route(self, scope: Scope) -> str:
         """The matched route's template; requests refused before routing (body guard) are matched here."""
-        template = getattr(scope.get("route"), "path", None)
+        # path_format: the template as documented, without Starlette convertors ("{key_id}", not "{key_id:key_id}").
+        template = getattr(scope.get("route"), "path_format", None)
         if template:
             return str(template)
         if self._templates is None:

@@ -7,7 +7,6 @@ import uuid
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, Path, Query, Request, Response, status
-from pydantic import AwareDatetime
 from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import State
 
@@ -24,6 +23,7 @@ from service.schemas import (
     FrameOut,
     FrameResult,
     KeypointFrame,
+    TimestampText,
 )
 from service.settings import Settings
 from service.store import repository
@@ -141,7 +141,8 @@ async def post_image(
     settings: SettingsDep,
     dispatcher: DispatcherDep,
     timestamp: Annotated[
-        AwareDatetime | None, Query(description="When the frame was taken (RFC 3339 with zone). Default: now.")
+        TimestampText | None,
+        Query(description="When the frame was taken (RFC 3339 with zone, or Unix seconds). Default: now."),
     ] = None,
     frame_id: Annotated[
         str | None,

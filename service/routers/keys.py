@@ -6,6 +6,7 @@ from datetime import UTC, datetime
 from typing import Annotated
 
 from fastapi import APIRouter, Path, Query, Request, Response, status
+from starlette.convertors import Convertor, register_url_convertor
 
 from service.auth.authenticator import Authenticator
 from service.auth.dependencies import AdminDep, PrincipalDep
@@ -22,6 +23,22 @@ from .common import ReadSessionDep, SessionDep
 router = APIRouter(prefix="/v1/keys", tags=["keys"])
 
 KeyIdPath = Annotated[str, Path(pattern=KEY_ID_PATTERN, description="The key's id (12 hex digits).")]
+
+
+class _KeyIdConvertor(Convertor[str]):
+    """Routes `/v1/keys/{key_id}` to key ids only, so `/v1/keys/current` is one resource: DELETE on it is 405 with
+    `Allow: GET`, not an attempt to revoke a key called "current". Other non-ids are 404."""
+
+    regex = KEY_ID_PATTERN.removeprefix("^").removesuffix("$")
+
+    def convert(self, value: str) -> str:
+        return value
+
+    def to_string(self, value: str) -> str:
+        return value
+
+
+register_url_convertor("key_id", _KeyIdConvertor())
 
 
 def key_url(key_id: str) -> str:
@@ -95,7 +112,7 @@ def get_current_key(caller: PrincipalDep) -> CallerOut:
     )
 
 
-@router.get("/{key_id}", response_model=KeyOut)
+@router.get("/{key_id:key_id}", response_model=KeyOut)
 def get_key(key_id: KeyIdPath, session: ReadSessionDep, _caller: AdminDep) -> KeyOut:
     key = stored_keys.get_key(session, key_id)
     if key is None:
@@ -103,7 +120,7 @@ def get_key(key_id: KeyIdPath, session: ReadSessionDep, _caller: AdminDep) -> Ke
     return key_out(key)
 
 
-@router.delete("/{key_id}", response_model=KeyOut)
+@router.delete("/{key_id:key_id}", response_model=KeyOut)
 def revoke_key(key_id: KeyIdPath, request: Request, session: SessionDep, _caller: AdminDep) -> KeyOut:
     """Revoke a key (idempotent). This API process refuses it at once; the others within `api_key_cache_ttl_s`.
 

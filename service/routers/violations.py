@@ -6,12 +6,11 @@ from datetime import UTC, datetime, timedelta
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Query, Response
-from pydantic import AwareDatetime
 
 from service.pictures import heatmap_png
 from service.problems import ProblemError
 from service.render.heatmap import ViolationPoint
-from service.schemas import ViolationBucketOut, ViolationCounts
+from service.schemas import TimestampText, ViolationBucketOut, ViolationCounts
 from service.store import repository
 from service.store.repository import HOUR_S, MINUTE_S
 
@@ -28,7 +27,11 @@ MAX_BUCKETS = 10_000
 def _window(since: datetime | None, until: datetime | None, bucket: str) -> tuple[datetime, datetime]:
     """The window in UTC, defaulted from the bucket width, and refused when empty or with too many buckets."""
     until = (until or datetime.now(UTC)).astimezone(UTC)
-    since = (since or until - DEFAULT_WINDOW[bucket]).astimezone(UTC)
+    if since is None:
+        # Near year 1 the default window would start before the first representable instant: it starts there.
+        earliest = datetime.min.replace(tzinfo=UTC)
+        since = until - DEFAULT_WINDOW[bucket] if until - earliest > DEFAULT_WINDOW[bucket] else earliest
+    since = since.astimezone(UTC)
     if since >= until:
         raise ProblemError(
             422, "invalid-window", f"`since` ({since.isoformat()}) must be before `until` ({until.isoformat()})."
@@ -43,9 +46,10 @@ def _window(since: datetime | None, until: datetime | None, bucket: str) -> tupl
 
 
 SinceQuery = Annotated[
-    AwareDatetime | None, Query(description="Window start (RFC 3339 with zone). Default: 1 h (minute) / 1 day.")
+    TimestampText | None,
+    Query(description="Window start (RFC 3339 with zone, or Unix seconds). Default: 1 h (minute) / 1 day back."),
 ]
-UntilQuery = Annotated[AwareDatetime | None, Query(description="Window end, exclusive. Default: now.")]
+UntilQuery = Annotated[TimestampText | None, Query(description="Window end, exclusive. Default: now.")]
 
 
 @router.get("/{camera_id}/violations", response_model=ViolationCounts)

@@ -10,12 +10,12 @@ import uuid
 from datetime import datetime
 from typing import Any, Literal
 
-from pydantic import BaseModel, Field, field_validator
+from pydantic import BaseModel, Field, StrictBool, field_validator
 
-from service.schemas import CameraId, StrictModel
+from service.schemas import CameraId, Integer, StrictModel
 from service.store.webhook_models import DESCRIPTION_MAX_LENGTH, EVENT_TYPES, WEBHOOK_URL_MAX_LENGTH
 
-from .signing import SECRET_PATTERN, secret_key
+from .signing import SECRET_DOCUMENTED_PATTERN, SECRET_PATTERN, secret_key
 
 EventType = Literal["violation.detected", "calibration.updated", "calibration.status_changed"]
 DeliveryStatus = Literal["pending", "delivered", "failed"]
@@ -37,7 +37,17 @@ Secret = Field(
     pattern=SECRET_PATTERN,
     description="A Standard Webhooks secret `whsec_<base64 of 24-64 random bytes>`. Omitted: one is generated "
     "and returned once.",
+    json_schema_extra={"pattern": SECRET_DOCUMENTED_PATTERN},
 )
+
+
+def _documented_without_null(schema: dict[str, Any]) -> None:
+    """The JSON schema of a PATCH field that may be left out but not null: `None` is only its "not given" default
+    (the model refuses an explicit null), so the document drops the null branch pydantic writes for `X | None`."""
+    options = [option for option in schema.pop("anyOf", []) if option.get("type") != "null"]
+    if len(options) == 1:
+        schema.update(options[0])
+    schema.pop("default", None)
 
 
 def _unique(values: list[Any] | None) -> list[Any] | None:
@@ -67,7 +77,7 @@ class WebhookCreate(StrictModel):
         description="Only events of these cameras (they need not exist yet); null or absent: every camera.",
     )
     description: str | None = Field(default=None, max_length=DESCRIPTION_MAX_LENGTH)
-    enabled: bool = True
+    enabled: StrictBool = True
 
     _unique_lists = field_validator("event_types", "camera_ids")(_unique)
     _valid_secret = field_validator("secret")(_check_secret)
@@ -79,11 +89,13 @@ class WebhookUpdate(StrictModel):
     Re-enabling a subscription sends the deliveries that waited while it was disabled.
     """
 
-    url: str | None = Field(default=None, min_length=1, max_length=WEBHOOK_URL_MAX_LENGTH)
-    event_types: list[EventType] | None = Field(default=None, min_length=1)
+    url: str | None = Field(
+        default=None, min_length=1, max_length=WEBHOOK_URL_MAX_LENGTH, json_schema_extra=_documented_without_null
+    )
+    event_types: list[EventType] | None = Field(default=None, min_length=1, json_schema_extra=_documented_without_null)
     camera_ids: list[CameraId] | None = Field(default=None, min_length=1, max_length=MAX_FILTER_CAMERAS)
     description: str | None = Field(default=None, max_length=DESCRIPTION_MAX_LENGTH)
-    enabled: bool | None = None
+    enabled: StrictBool | None = Field(default=None, json_schema_extra=_documented_without_null)
 
     _unique_lists = field_validator("event_types", "camera_ids")(_unique)
 
@@ -99,7 +111,7 @@ class SecretRotation(StrictModel):
     """A new secret (`POST /v1/webhooks/{id}/secret`); the old one keeps signing for `previous_valid_for_s`."""
 
     secret: str | None = Secret
-    previous_valid_for_s: int = Field(
+    previous_valid_for_s: Integer = Field(
         default=DEFAULT_ROTATION_GRACE_S,
         ge=0,
         le=MAX_ROTATION_GRACE_S,

@@ -16,6 +16,7 @@ import base64
 import binascii
 import hashlib
 import hmac
+import re
 import secrets
 from collections.abc import Sequence
 
@@ -24,7 +25,16 @@ SECRET_PREFIX = "whsec_"
 SECRET_MIN_BYTES = 24
 SECRET_MAX_BYTES = 64
 GENERATED_SECRET_BYTES = 32
-SECRET_PATTERN = r"^whsec_[A-Za-z0-9+/]+={0,2}$"
+_B64 = "[A-Za-z0-9+/]"
+# Canonical base64 (whole quanta, padding only where the last quantum needs it): Python's decoder also takes
+# surplus padding ("...A===") and so did the old pattern, which made "valid" depend on the decoder's leniency.
+SECRET_PATTERN = rf"^whsec_(?:{_B64}{{4}})*(?:{_B64}{{2}}==|{_B64}{{3}}=)?$"
+# The same with the 24-64 byte length written out (8-21 quanta, and at most one byte in a last padded one), for the
+# OpenAPI document: what it calls valid is exactly what secret_key accepts. Validation checks the length itself,
+# to say "decodes to 9 bytes" rather than "does not match the pattern".
+SECRET_DOCUMENTED_PATTERN = (
+    rf"^whsec_(?:{_B64}{{4}}){{8,20}}(?:{_B64}{{4}}(?:{_B64}{{2}}==)?|{_B64}{{2}}==|{_B64}{{3}}=)?$"
+)
 
 
 def generate_secret() -> str:
@@ -36,6 +46,10 @@ def secret_key(secret: str) -> bytes:
     """The HMAC key of a `whsec_` secret; ValueError when it is not one (bad prefix, not base64, wrong length)."""
     if not secret.startswith(SECRET_PREFIX):
         raise ValueError(f"a secret starts with {SECRET_PREFIX!r}")
+    if re.fullmatch(SECRET_PATTERN, secret) is None:
+        raise ValueError(
+            f"the part after {SECRET_PREFIX!r} is not valid base64 (whole 4-character groups, '=' only to pad the last)"
+        )
     try:
         key = base64.b64decode(secret[len(SECRET_PREFIX) :], validate=True)
     except binascii.Error as exc:

@@ -332,7 +332,11 @@ def test_key_life_cycle_over_http(client: TestClient, client_for: Callable[[str]
 
     assert_problem(client.get("/v1/keys/0123456789ab"), 404, "no api key")
     assert_problem(client.delete("/v1/keys/0123456789ab"), 404, "no api key")
-    assert_problem(client.get("/v1/keys/NOT-AN-ID"), 422)
+    # Only key ids route to a key: anything else is no resource at all, and `current` is its own.
+    assert_problem(client.get("/v1/keys/NOT-AN-ID"), 404, "no such resource")
+    refused = client.delete("/v1/keys/current")
+    assert_problem(refused, 405)
+    assert refused.headers["allow"] == "GET"
 
 
 def test_keys_are_listed_a_page_at_a_time(client: TestClient) -> None:

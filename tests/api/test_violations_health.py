@@ -69,4 +69,8 @@ def test_health_and_readiness(client: TestClient, dispatcher: RecordingDispatche
 
 def test_unknown_routes_and_methods_are_problems(client: TestClient) -> None:
     assert_problem(client.get("/v2/cameras"), 404, "/v2/cameras")
-    assert_problem(client.patch("/v1/cameras/x", json={}), 405, "PATCH")
+    refused = client.patch("/v1/cameras/x", json={})
+    assert_problem(refused, 405, "PATCH", "allowed: GET, PUT, DELETE")
+    assert refused.headers["allow"] == "GET, PUT, DELETE"  # three routes serve the path, not just the first
+    # A path no route takes is a 404 whatever the method and body: the body guard does not read it.
+    assert_problem(client.post("/v1/nothing", content=b"x" * 10, headers={"Content-Type": "text/plain"}), 404)
