@@ -49,7 +49,7 @@ WORKER_STOP_TIMEOUT_S = 30.0
 WORKER_RESTART_DELAY_S = 2.0
 _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 # service.queue.QUEUES, repeated to keep `--help` free of redis/rq imports (a test keeps them equal).
-QUEUE_NAMES = ("frames", "webhooks", "pose", "calibration")
+QUEUE_NAMES = ("webhooks", "frames", "pose", "calibration")
 LOG_FORMAT_HELP = "Log format of every process: json (one object per line) or text (POSEMETRY_LOG_FORMAT)."
 LOG_LEVEL_HELP = "Log level of every process: debug, info, warning or error (POSEMETRY_LOG_LEVEL)."
 log = logging.getLogger("posemetry.serve")

@@ -38,7 +38,6 @@ METRES_PER_FOOT = 0.3048
 MAX_IMAGE_SIDE_PX = 100_000
 
 
-
 def _not_a_boolean(value: object) -> object:
     if isinstance(value, bool):
         raise PydanticCustomError("bool_not_number", "Input should be a number, not true or false")

@@ -102,9 +102,7 @@ def run_pose_benchmark(
     for pose_model in pose_models:
         progress(f"{pose_model}: loading sessions")
         estimators = {
-            mode: TopDownPose(
-                model_dir, pose_model, detector_input_px=detector_input_px, threads=threads, crops=mode
-            )
+            mode: TopDownPose(model_dir, pose_model, detector_input_px=detector_input_px, threads=threads, crops=mode)
             for mode in MODES
         }
         results = {mode: PoseTiming(pose_model, mode) for mode in MODES}

@@ -62,9 +62,7 @@ def test_streamed_frames_calibrate_the_camera_and_come_back_measured(
 
         # The first two frames (20 people) are below the 30 needed: they wait for a calibration.
         assert statuses_on_arrival[0] == statuses_on_arrival[1] == "pending"
-        app.wait_for(
-            lambda: all(app.http("GET", url)[1]["status"] == "done" for url in urls), "every frame measured"
-        )
+        app.wait_for(lambda: all(app.http("GET", url)[1]["status"] == "done" for url in urls), "every frame measured")
         # Solves follow the evidence by factors of 1.5 (30, 45, ... 342 people); a forced one takes it all.
         assert app.http("POST", "/v1/cameras/street/calibration")[0] == 202
         usable = app.http("GET", "/v1/cameras/street")[1]["usable_evidence_count"]

@@ -56,7 +56,7 @@ def test_batch_stores_every_frame_and_counts_evidence(factory: sessionmaker[Sess
 def test_batch_answers_retries_from_the_store_and_from_within_the_batch(factory: sessionmaker[Session]) -> None:
     cam = camera(factory)
     with factory() as session:
-        (first, _), = repository.add_keypoint_frames(session, [frame(cam, "a")])
+        ((first, _),) = repository.add_keypoint_frames(session, [frame(cam, "a")])
         session.commit()
     with factory() as session:
         stored = repository.add_keypoint_frames(session, [frame(cam, "a"), frame(cam, "b"), frame(cam, "b")])
