@@ -22,8 +22,11 @@ from service.auth.cli import keys_app
 from service.pose.cli import models_app
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
+
     from fastapi import FastAPI
 
+    from service.bench.report import ReportTable
     from service.embedded_redis import EmbeddedRedis
 
 app = typer.Typer(
@@ -68,6 +71,32 @@ def main(
     """Camera auto-calibration and physical distances from human pose."""
 
 
+def _print_report(
+    title: str, header: Sequence[str], tables: Sequence[ReportTable], footer: Sequence[str], markdown: Path | None
+) -> None:
+    """A benchmark's header lines, tables and footer lines on stdout, and optionally as a Markdown file."""
+    from service.bench.report import markdown_document, to_rich
+
+    console = Console()
+    if not console.is_terminal:
+        # Piped or captured output would otherwise be cut at 80 columns and truncate the tables' cells.
+        console = Console(width=_PIPED_WIDTH)
+    console.print(f"posemetry {title[0].lower()}{title[1:]}", style="bold")
+    for line in header:
+        console.print(line, highlight=False)
+    for table in tables:
+        console.print()
+        console.print(to_rich(table))
+    if footer:
+        console.print()
+    for line in footer:
+        console.print(line, highlight=False)
+    if markdown is not None:
+        markdown.parent.mkdir(parents=True, exist_ok=True)
+        markdown.write_text(markdown_document(title, [*header, *footer], tables))
+        console.print(f"\nwrote {markdown}", highlight=False)
+
+
 @bench_app.command("geometry")
 def bench_geometry(
     trials: int | None = typer.Option(
@@ -86,7 +115,6 @@ def bench_geometry(
 ) -> None:
     """Accuracy of calibrate() on simulated scenes (paper Sect. 4.1, Tables 1-3) and its speed."""
     from service.bench.geometry import BenchmarkOptions, parse_only, run_benchmark
-    from service.bench.report import markdown_document, to_rich
 
     try:
         selected = parse_only(only)
@@ -99,22 +127,9 @@ def bench_geometry(
         only=selected,
         repeats=repeats,
     )
-    console = Console()
-    if not console.is_terminal:
-        # Piped or captured output would otherwise be cut at 80 columns and truncate the tables' cells.
-        console = Console(width=_PIPED_WIDTH)
     log = Console(stderr=True)
     report = run_benchmark(options, progress=lambda message: log.print(f"[dim]{message}[/dim]", highlight=False))
-    console.print("posemetry geometry benchmark", style="bold")
-    for line in report.header:
-        console.print(line, highlight=False)
-    for table in report.tables:
-        console.print()
-        console.print(to_rich(table))
-    if markdown is not None:
-        markdown.parent.mkdir(parents=True, exist_ok=True)
-        markdown.write_text(markdown_document("Geometry benchmark", report.header, report.tables))
-        console.print(f"\nwrote {markdown}", highlight=False)
+    _print_report("Geometry benchmark", report.header, report.tables, [], markdown)
     if report.unexpected_errors:
         for line in report.unexpected_errors:
             log.print(f"[red]unexpected exception[/red] {line}", highlight=False)
@@ -220,7 +235,6 @@ def bench_load(
     from service.bench.frames import PAYLOADS
     from service.bench.load import LoadOptions, run_load
     from service.bench.load_report import footer, header, tables
-    from service.bench.report import markdown_document, to_rich
 
     if payload not in PAYLOADS:
         raise typer.BadParameter(f"choose from {', '.join(PAYLOADS)}", param_hint="--payload")
@@ -252,25 +266,9 @@ def bench_load(
         profile_dir=profile,
         seed=seed,
     )
-    console = Console()
-    if not console.is_terminal:
-        console = Console(width=_PIPED_WIDTH)
     log = Console(stderr=True)
     result = run_load(options, progress=lambda message: log.print(f"[dim]{message}[/dim]", highlight=False))
-    lines, report = header(result), tables(result)
-    console.print("posemetry load benchmark", style="bold")
-    for line in lines:
-        console.print(line, highlight=False)
-    for table in report:
-        console.print()
-        console.print(to_rich(table))
-    console.print()
-    for line in footer(result):
-        console.print(line, highlight=False)
-    if markdown is not None:
-        markdown.parent.mkdir(parents=True, exist_ok=True)
-        markdown.write_text(markdown_document("Load benchmark", [*lines, *footer(result)], report))
-        console.print(f"\nwrote {markdown}", highlight=False)
+    _print_report("Load benchmark", header(result), tables(result), footer(result), markdown)
 
 
 @bench_app.command("pose")

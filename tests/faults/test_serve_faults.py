@@ -208,9 +208,12 @@ def test_serve_restarts_its_redis_and_loses_no_accepted_frame(served: tuple[Serv
         answers.append(post_until_accepted(client, camera, refusals))
         if k == 20:
             print(f"\nembedded Redis killed: frames accepted again {time.monotonic() - killed_at:.1f} s later")
-    # The outage was seen, and answered as a problem, never a 500; the frame was stored all the same, so the
-    # client's retry of it was answered 200 with the same frame, not stored twice.
-    assert refusals and all(r.is_problem and r.body["type"].endswith("/queue-unavailable") for r in refusals)
+    # Any post that met the outage was answered as a problem, never a 500; the frame was stored all the same, so
+    # the client's retry of it was answered 200 with the same frame, not stored twice. (Usually one or two posts
+    # meet it; none when serve's new Redis is up within redis-py's own reconnection retries. The 503 itself is
+    # pinned in process by tests/api/test_frames.py.)
+    print(f"{len(refusals)} posts refused while Redis was down")
+    assert all(r.is_problem and r.body["type"].endswith("/queue-unavailable") for r in refusals)
     assert all(r.headers.get("retry-after") for r in refusals)
     retried = {r.body["frame_id"] for r in refusals}
     assert retried <= {a.body["frame_id"] for a in answers if a.status == 200}
