@@ -85,6 +85,7 @@ def test_text_lines_append_their_context() -> None:
             except ValueError:
                 logging.getLogger("workers.jobs").exception("solve failed")
         logging.getLogger("workers.jobs").info("outside")
+        logging.getLogger("alembic.runtime.plugins").info("setup plugin alembic.autogenerate.schemas")  # start noise
     finally:
         root.removeHandler(handler)
         root.setLevel(level)

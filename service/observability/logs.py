@@ -102,6 +102,9 @@ def configure_logging(log_format: LogFormat, level: str | int = "INFO", stream: 
         logger = logging.getLogger(name)
         logger.handlers.clear()
         logger.propagate = True
+    # Alembic announces each of its autogenerate plugins at INFO on every start: seven lines of nothing for an
+    # operator. Its migration lines ("Running upgrade ...") stay.
+    logging.getLogger("alembic.runtime.plugins").setLevel(logging.WARNING)
     if log_format == "json":
         # RQ colours queue names with ANSI escapes when stdout is a terminal; they do not belong in JSON.
         from rq.logutils import colorizer
