@@ -39,6 +39,7 @@ from service.routers import (
 )
 from service.settings import Settings, get_settings
 from service.store import make_engine, make_session_factory
+from service.store.camera_cache import CameraCache
 from service.store.frame_writer import FrameWriter
 
 if TYPE_CHECKING:
@@ -123,6 +124,7 @@ def create_app(
     app.state.session_factory = make_session_factory(engine)
     app.state.read_session_factory = make_session_factory(engine, read_only=True)
     app.state.frame_writer = FrameWriter(app.state.session_factory)
+    app.state.camera_cache = CameraCache(settings.camera_cache_ttl_s)
     app.state.dispatcher = dispatcher
     app.state.authenticator = Authenticator(
         admin_key=None if settings.admin_key is None else settings.admin_key.get_secret_value(),

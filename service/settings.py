@@ -66,6 +66,15 @@ class Settings(BaseSettings):
         "again, so authenticating a request costs no database round trip. A key revoked elsewhere stops working "
         "on every API process within this time (at once on the process that revoked it); 0 reads every request.",
     )
+    camera_cache_ttl_s: float = Field(
+        default=2.0,
+        ge=0.0,
+        le=60.0,
+        description="How long each API process reuses a camera's image size, read for accepting a keypoint frame, "
+        "before reading it again (a third of the API's CPU per frame otherwise). A camera changed or deleted "
+        "through another API process is seen within this time (at once by the process that changed it); 0 reads "
+        "every request.",
+    )
     max_people_per_frame: int = Field(
         default=200,
         ge=1,

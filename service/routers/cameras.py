@@ -5,7 +5,7 @@ from __future__ import annotations
 import uuid
 from typing import Annotated
 
-from fastapi import APIRouter, Query, Response, status
+from fastapi import APIRouter, Query, Request, Response, status
 
 from service.auth.dependencies import PrincipalDep
 from service.schemas import METRES_PER_FOOT, CameraList, CameraOut, CameraSettings
@@ -50,7 +50,12 @@ def camera_out(camera: Camera) -> CameraOut:
     responses={200: {"description": "Updated"}, 201: {"description": "Created"}},
 )
 def put_camera(
-    camera_id: CameraIdPath, body: CameraSettings, response: Response, session: SessionDep, dispatcher: DispatcherDep
+    camera_id: CameraIdPath,
+    body: CameraSettings,
+    request: Request,
+    response: Response,
+    session: SessionDep,
+    dispatcher: DispatcherDep,
 ) -> CameraOut:
     """Create or update a camera (idempotent): 201 when created, 200 when it existed.
 
@@ -93,6 +98,7 @@ def put_camera(
         elif old[2:] != (body.person_height_m, body.equal_focal, body.known_focal_px):
             resolve = True
     session.commit()
+    request.app.state.camera_cache.forget(camera_id)
     if deliveries:
         nudge_best_effort("queue webhook deliveries", dispatcher.deliveries_due, first_attempts(deliveries))
     if resolve:
@@ -122,9 +128,10 @@ def get_camera(camera_id: CameraIdPath, session: ReadSessionDep) -> CameraOut:
 
 
 @router.delete("/{camera_id}", status_code=status.HTTP_204_NO_CONTENT, response_class=Response)
-def delete_camera(camera_id: CameraIdPath, session: SessionDep) -> Response:
+def delete_camera(camera_id: CameraIdPath, request: Request, session: SessionDep) -> Response:
     """Delete a camera with all its frames, evidence, calibrations and violation events."""
     require_camera(session, camera_id)
     repository.delete_camera(session, camera_id)
     session.commit()
+    request.app.state.camera_cache.forget(camera_id)
     return Response(status_code=status.HTTP_204_NO_CONTENT)

@@ -81,8 +81,9 @@ async def post_keypoints(
 
 def _store_keypoints(state: State, camera_id: str, body: KeypointFrame, response: Response) -> FrameAccepted:
     settings: Settings = state.settings
-    with state.read_session_factory() as read_session:
-        camera = require_camera(read_session, camera_id)
+    camera = state.camera_cache.get(state.read_session_factory, camera_id)
+    if camera is None:
+        raise camera_not_found(camera_id)
     # Checks and conversion happen before the writing transaction, which on SQLite holds the one write lock. The
     # camera stays readable: closing a session detaches its objects without expiring them.
     people = people_for_camera(body.people, camera, settings)

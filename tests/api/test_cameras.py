@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import pytest
+from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
 from service.dispatch import RecordingDispatcher
 from service.geometry import DEFAULT_HEIGHT_M
+from service.store import repository
 
 from .conftest import CAMERA, assert_problem, frame_body, standing
 
@@ -84,3 +86,21 @@ def test_new_image_size_drops_evidence_and_new_prior_asks_for_a_resolve(
     assert client.get(f"/v1/cameras/{camera}").json()["usable_evidence_count"] == 3
     client.put(f"/v1/cameras/{camera}", json={"image_width_px": 1280, "image_height_px": 720})
     assert client.get(f"/v1/cameras/{camera}").json()["usable_evidence_count"] == 0
+
+
+def test_keypoint_frames_see_a_new_image_size_at_once(client: TestClient, camera: str) -> None:
+    """The API caches cameras for accepting frames (POSEMETRY_CAMERA_CACHE_TTL_S); its own changes apply at once."""
+    far_right = {"shoulder": [1900, 300], "ankle": [1900, 450]}  # inside 1920 x 1080, far outside 640 x 480
+    client.put(f"/v1/cameras/{camera}", json={"image_width_px": 640, "image_height_px": 480})
+    assert_problem(client.post(f"/v1/cameras/{camera}/keypoints", json=frame_body([far_right])), 422)
+    client.put(f"/v1/cameras/{camera}", json={"image_width_px": 1920, "image_height_px": 1080})
+    assert client.post(f"/v1/cameras/{camera}/keypoints", json=frame_body([far_right])).status_code == 202
+    assert client.delete(f"/v1/cameras/{camera}").status_code == 204
+    assert_problem(client.post(f"/v1/cameras/{camera}/keypoints", json=frame_body([far_right])), 404)
+
+
+def test_a_camera_deleted_by_another_process_is_404_for_frames(client: TestClient, camera: str, app: FastAPI) -> None:
+    assert client.post(f"/v1/cameras/{camera}/keypoints", json=frame_body(standing(2))).status_code == 202  # cached
+    with app.state.session_factory() as session, session.begin():
+        repository.delete_camera(session, camera)  # past this process's cache, as another API process would
+    assert_problem(client.post(f"/v1/cameras/{camera}/keypoints", json=frame_body(standing(2))), 404, camera)

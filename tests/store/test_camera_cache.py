@@ -1,0 +1,75 @@
+"""The API's per-process camera cache: fresh reads within its time, forgotten on change, absence never kept."""
+
+from __future__ import annotations
+
+from sqlalchemy import Engine, update
+from sqlalchemy.orm import Session, sessionmaker
+
+from service.store import make_session_factory, repository
+from service.store.camera_cache import CameraCache
+from service.store.models import Camera
+
+from .test_repository import add_camera
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.now = 100.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def _resize(sessions: sessionmaker[Session], camera_id: str, width_px: int) -> None:
+    """Another process's change: straight to the database, past the cache."""
+    with sessions() as session, session.begin():
+        session.execute(update(Camera).where(Camera.id == camera_id).values(image_width_px=width_px))
+
+
+def test_a_camera_is_reused_until_its_time_is_up(engine: Engine) -> None:
+    sessions = make_session_factory(engine)
+    with sessions() as session:
+        add_camera(session, "cam-1")
+        session.commit()
+    clock = Clock()
+    cache = CameraCache(ttl_s=2.0, clock=clock)
+    first = cache.get(sessions, "cam-1")
+    assert first is not None
+    width = first.image_width_px
+    _resize(sessions, "cam-1", width + 100)
+    clock.now += 1.9
+    cached = cache.get(sessions, "cam-1")
+    assert cached is first and cached.image_width_px == width  # still trusted
+    clock.now += 0.2
+    fresh = cache.get(sessions, "cam-1")
+    assert fresh is not None and fresh.image_width_px == width + 100  # read again after ttl_s
+
+
+def test_forget_and_a_zero_ttl_read_again(engine: Engine) -> None:
+    sessions = make_session_factory(engine)
+    with sessions() as session:
+        add_camera(session, "cam-1")
+        session.commit()
+    cache = CameraCache(ttl_s=60.0, clock=Clock())
+    width = cache.get(sessions, "cam-1").image_width_px  # type: ignore[union-attr]
+    _resize(sessions, "cam-1", width + 1)
+    cache.forget("cam-1")  # what the process that changed it does
+    assert cache.get(sessions, "cam-1").image_width_px == width + 1  # type: ignore[union-attr]
+    uncached = CameraCache(ttl_s=0.0, clock=Clock())
+    uncached.get(sessions, "cam-1")
+    _resize(sessions, "cam-1", width + 2)
+    assert uncached.get(sessions, "cam-1").image_width_px == width + 2  # type: ignore[union-attr]
+
+
+def test_a_missing_camera_is_never_remembered(engine: Engine) -> None:
+    sessions = make_session_factory(engine)
+    cache = CameraCache(ttl_s=60.0, clock=Clock())
+    assert cache.get(sessions, "later") is None
+    with sessions() as session:
+        add_camera(session, "later")  # created by another process
+        session.commit()
+    assert cache.get(sessions, "later") is not None
+    with sessions() as session, session.begin():
+        repository.delete_camera(session, "later")
+    # Deleted elsewhere: still remembered until ttl_s, and the frame's insert then fails on its foreign key (404).
+    assert cache.get(sessions, "later") is not None
