@@ -141,3 +141,22 @@ def test_small_batches_still_reach_every_waiter(factory: sessionmaker[Session]) 
     assert len(set(ids)) == 12
     with factory() as session:
         assert count(session, Frame) == 12
+
+
+def test_client_frame_ids_are_per_camera_within_one_batch(factory: sessionmaker[Session]) -> None:
+    """One lookup answers retries of several cameras at once; the same client id on two cameras is two frames."""
+    one, two, three = camera(factory, "cam-1"), camera(factory, "cam-2"), camera(factory, "cam-3")
+    with factory() as session:
+        first = repository.add_keypoint_frames(session, [frame(one, "a"), frame(two, "b")])
+        session.commit()
+    with factory() as session:
+        again = repository.add_keypoint_frames(
+            session, [frame(two, "b"), frame(one, "b"), frame(three, "a"), frame(one, "a")]
+        )
+        session.commit()
+    assert [created for _, created in again] == [False, True, True, False]
+    assert again[0][0].id == first[1][0].id and again[3][0].id == first[0][0].id
+    with factory() as session:
+        assert count(session, Frame) == 4
+        counts = {c.id: c.usable_evidence_count for c in session.query(Camera)}
+        assert counts == {"cam-1": 4, "cam-2": 2, "cam-3": 2}  # two usable people per frame
