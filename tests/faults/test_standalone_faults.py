@@ -14,7 +14,6 @@ under it); the API is not: it must ride out both outages.
 
 from __future__ import annotations
 
-import os
 import subprocess
 import threading
 import time
@@ -41,10 +40,9 @@ from tests.faults.harness import (
     started_job,
     wait_until,
 )
-from tests.postgres import PostgresCluster, PostgresUnavailableError
+from tests.postgres import PostgresCluster, cluster_or_skip
 from tests.serving import clean_environment
 from tests.shared import model_dir_path
-from tests.store.conftest import REQUIRE_POSTGRES_ENV
 
 RECOVERY_DEADLINE_S = 60.0
 REDIS_DOWN_S = 1.5
@@ -62,12 +60,7 @@ class Stack:
 
 @pytest.fixture(scope="module")
 def stack() -> Iterator[Stack]:
-    try:
-        cluster = PostgresCluster()
-    except PostgresUnavailableError as exc:
-        if os.environ.get(REQUIRE_POSTGRES_ENV) == "1":
-            pytest.fail(f"PostgreSQL required ({REQUIRE_POSTGRES_ENV}=1): {exc}")
-        pytest.skip(f"PostgreSQL not installed: {exc}")
+    cluster = cluster_or_skip()
     cluster.start()
     redis_server = RedisServer().start()
     try:

@@ -11,7 +11,6 @@ POSEMETRY_TESTS_REQUIRE_POSTGRES=1, which turns that into a failure; `.ci/run` i
 from __future__ import annotations
 
 import itertools
-import os
 import shutil
 from collections.abc import Iterator
 from pathlib import Path
@@ -22,22 +21,16 @@ from sqlalchemy.orm import Session
 
 from service.store import make_engine, make_session_factory
 from service.store.migrate import upgrade
-from tests.postgres import PostgresCluster, PostgresUnavailableError
+from tests.postgres import PostgresCluster, cluster_or_skip
 
 BACKENDS = ("sqlite", "postgresql")
-REQUIRE_POSTGRES_ENV = "POSEMETRY_TESTS_REQUIRE_POSTGRES"
 PG_TEMPLATE = "posemetry_template"
 _database_numbers = itertools.count()
 
 
 @pytest.fixture(scope="session")
 def postgres_cluster() -> Iterator[PostgresCluster]:
-    try:
-        cluster = PostgresCluster()
-    except PostgresUnavailableError as exc:
-        if os.environ.get(REQUIRE_POSTGRES_ENV) == "1":
-            pytest.fail(f"PostgreSQL required ({REQUIRE_POSTGRES_ENV}=1): {exc}")
-        pytest.skip(f"PostgreSQL not installed: {exc}")
+    cluster = cluster_or_skip()
     try:
         yield cluster.start()
     finally:
