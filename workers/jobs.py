@@ -46,6 +46,7 @@ from service.store.repository import (
     current_calibration,
     frame_image,
     frames_points,
+    key_new_evidence,
     pending_frames,
     record_detection_failure,
     record_detections,
@@ -68,6 +69,9 @@ SKIPPED = "skipped"
 # Frames measured per read/compute/write round: large enough to amortise the transactions, small enough that
 # the write lock is held for milliseconds.
 FRAMES_CHUNK = 50
+# People keyed for sampling per transaction: shares index pages between many people while holding the write
+# lock for about as long as one batch of ingest.
+KEY_CHUNK = 2000
 
 _engines: dict[tuple[int, str], tuple[Engine, sessionmaker[Session], sessionmaker[Session]]] = {}
 _P = ParamSpec("_P")
@@ -379,6 +383,17 @@ def calibrate_camera(camera_id: str, forced: bool = False) -> str:
     )
 
 
+def key_camera_evidence(settings: Settings, camera_id: str) -> int:
+    """Key every person the camera stored since its last solve, in short transactions; returns how many."""
+    total = 0
+    while True:
+        with _transaction(settings) as session:
+            keyed = key_new_evidence(session, camera_id, limit=KEY_CHUNK)
+        total += keyed
+        if keyed < KEY_CHUNK:
+            return total
+
+
 def _solve(settings: Settings, dispatcher: RedisDispatcher, camera_id: str, *, forced: bool) -> str:
     from service.geometry.evidence import solve_evidence
 
@@ -392,6 +407,11 @@ def _solve(settings: Settings, dispatcher: RedisDispatcher, camera_id: str, *, f
             # Frames that arrived during the previous solve saw "due" and asked again; if that solve already
             # covered the growth, another one now would change nothing. Forced solves always run.
             return SKIPPED
+    key_camera_evidence(settings, camera_id)
+    with read_session_factory(settings)() as session:
+        camera = session.get(Camera, camera_id)
+        if camera is None:
+            return GONE
         sample = sample_evidence(session, camera_id, cap=settings.calibration_sample_cap)
         evidence_count = int(camera.usable_evidence_count)
         image_size = (camera.image_width_px, camera.image_height_px)

@@ -10,7 +10,10 @@ Design choices that the rest of the service relies on:
   UTC text, which sorts and compares correctly because every value has the same format.
 - Observations carry a coarse grid `cell` of the ankle position and a pseudo-random `sample_key`; the index
   (camera_id, usable, cell, sample_key) lets a calibration read a capped, spatially balanced sample with a few
-  index range scans instead of reading every stored person (see repository.sample_evidence).
+  index range scans instead of reading every stored person (see repository.sample_evidence). People are stored
+  unkeyed (sample_key NULL), and the calibration job keys a camera's new people in bulk before it samples
+  (repository.key_new_evidence): that index is random in (cell, sample_key), so filling it one person per insert
+  dirtied one page per person and was two thirds of the bytes written on the ingest path.
 - Raw keypoints are stored as packed little-endian float32 (x, y, score) x 17, not JSON: encoding JSON floats
   was a quarter of the cost of storing a frame, and the points are only ever read back whole (`Observation.keypoints`
   unpacks them).
@@ -240,13 +243,26 @@ class Observation(Base):
     usable: Mapped[bool] = mapped_column(Boolean)
     unusable_reason: Mapped[str | None] = mapped_column(String(REASON_MAX_LENGTH))
     cell: Mapped[int | None] = mapped_column(Integer)
-    sample_key: Mapped[int] = mapped_column(Integer)
+    # None until the calibration job keys the person (repository.key_new_evidence).
+    sample_key: Mapped[int | None] = mapped_column(Integer)
 
     __table_args__ = (
         # Also the index behind the cascade from frames.
         UniqueConstraint("frame_id", "person_index"),
+        # A camera's people: the unkeyed ones (sample_key NULL) together and in arrival order, so storing people
+        # appends to one page per camera, and keying finds them in order. Deleting or resetting a camera's
+        # evidence, and the cascade from cameras, use it too.
+        Index("ix_observations_camera_id_sample_key_id", "camera_id", "sample_key", "id"),
         # The calibration sample: equality on (camera_id, usable, cell), then a range on sample_key.
-        Index("ix_observations_camera_id_usable_cell_sample_key", "camera_id", "usable", "cell", "sample_key"),
+        Index(
+            "ix_observations_camera_id_usable_cell_sample_key",
+            "camera_id",
+            "usable",
+            "cell",
+            "sample_key",
+            sqlite_where=text("sample_key IS NOT NULL"),
+            postgresql_where=text("sample_key IS NOT NULL"),
+        ),
         CheckConstraint(
             "NOT usable OR (shoulder_x_px IS NOT NULL AND shoulder_y_px IS NOT NULL AND ankle_x_px IS NOT NULL "
             "AND ankle_y_px IS NOT NULL AND cell IS NOT NULL)",

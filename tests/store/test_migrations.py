@@ -13,6 +13,7 @@ from service.settings import get_settings
 from service.store import make_engine
 from service.store.migrate import current_revision, head_revision, schema_differences, upgrade
 from service.store.models import Base
+from service.store.repository import sample_key
 
 TABLES = {"cameras", "frames", "frame_images", "observations", "calibrations", "violation_events", "api_keys"}
 WEBHOOK_TABLES = {
@@ -82,7 +83,10 @@ def test_cli_db_upgrade_reports_an_unreachable_database(tmp_path: Path) -> None:
 
 
 def test_0002_packs_stored_keypoints_and_unpacks_them_on_downgrade(database_url: str) -> None:
-    """Keypoints stored as JSON before revision 0002 survive the move to packed float32, and the way back."""
+    """Keypoints stored as JSON before revision 0002 survive the move to packed float32, and the way back.
+
+    The way back also passes 0006, which must key the people stored unkeyed before sample_key is NOT NULL again.
+    """
     import json
 
     from alembic import command
@@ -131,8 +135,13 @@ def test_0002_packs_stored_keypoints_and_unpacks_them_on_downgrade(database_url:
             assert stored[0].keypoints is not None
             for got, want in zip(stored[0].keypoints, keypoints, strict=True):
                 assert got == pytest.approx(want, abs=1e-4)
+            stored[1].sample_key = None  # stored since 0006 and not keyed yet: the downgrade must key it
+            session.commit()
         command.downgrade(alembic_config(database_url), "0001")
         with engine.connect() as connection:
+            keys = connection.execute(text("SELECT sample_key FROM observations ORDER BY person_index")).scalars()
+            ids = connection.execute(text("SELECT id FROM observations ORDER BY person_index")).scalars()
+            assert list(keys) == [1, sample_key(list(ids)[1])]
             rows = connection.execute(text("SELECT keypoints FROM observations ORDER BY person_index")).all()
         restored = rows[0][0] if isinstance(rows[0][0], list) else json.loads(rows[0][0])
         assert rows[1][0] is None

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from sqlalchemy import Engine, func, select, update
+from sqlalchemy import Engine, func, select, text, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
@@ -360,8 +360,66 @@ def populate_cells(session: Session, per_cell: dict[int, int], people_per_frame:
         batch = people[start : start + people_per_frame]
         add_frame(session, "cam-1", [*batch, PersonIn(shoulder_px=(1.0, 1.0), ankle_px=None)])
     session.commit()
+    key_everyone(session, "cam-1")
     stmt = select(Observation.id).where(Observation.camera_id == "cam-1", Observation.usable.is_(True))
     return list(session.scalars(stmt))
+
+
+def key_everyone(session: Session, camera_id: str, limit: int = 333) -> int:
+    """What the calibration job does before it samples: key in short transactions until none is left."""
+    total = 0
+    while keyed := repository.key_new_evidence(session, camera_id, limit=limit):
+        session.commit()
+        total += keyed
+    return total
+
+
+def test_people_are_stored_unkeyed_and_keyed_in_bulk_oldest_first(session: Session) -> None:
+    add_camera(session, "cam-1")
+    add_camera(session, "cam-2")
+    frames = [add_frame(session, "cam-1", [person_in_cell(3), person_in_cell(40)]) for _ in range(3)]
+    add_frame(session, "cam-2", [person_in_cell(3)])
+    session.commit()
+    assert count(session, Observation, sample_key=None) == 7
+    assert len(repository.sample_evidence(session, "cam-1", cap=50)) == 0  # unkeyed people are not sampled yet
+
+    assert repository.key_new_evidence(session, "cam-1", limit=4) == 4
+    session.commit()
+    keyed = session.execute(
+        select(Observation.id, Observation.frame_id, Observation.sample_key)
+        .where(Observation.sample_key.is_not(None))
+        .order_by(Observation.id)
+    ).all()
+    assert [row.frame_id for row in keyed] == [frames[0].id, frames[0].id, frames[1].id, frames[1].id]
+    assert [row.sample_key for row in keyed] == [repository.sample_key(row.id) for row in keyed]
+    assert len(repository.sample_evidence(session, "cam-1", cap=50)) == 4
+
+    assert key_everyone(session, "cam-1") == 2
+    assert repository.key_new_evidence(session, "cam-1", limit=10) == 0
+    assert len(repository.sample_evidence(session, "cam-1", cap=50)) == 6
+    assert count(session, Observation, camera_id="cam-2", sample_key=None) == 1  # other cameras wait their turn
+    with pytest.raises(ValueError):
+        repository.key_new_evidence(session, "cam-1", limit=0)
+
+
+@pytest.mark.parametrize(
+    "statement",
+    [
+        "SELECT id FROM observations WHERE camera_id = 'c' AND sample_key IS NULL ORDER BY id LIMIT 10",
+        "SELECT id FROM observations WHERE camera_id = 'c' AND usable = true AND cell = 3 "
+        "AND sample_key IS NOT NULL AND sample_key >= 5 ORDER BY sample_key, id LIMIT 10",
+        "DELETE FROM observations WHERE camera_id = 'c'",
+    ],
+)
+def test_observations_are_found_through_an_index(session: Session, statement: str) -> None:
+    """The partial indexes only help if the planner proves a query matches them: no full scans of the biggest
+    table. PostgreSQL prefers a scan for a table this small, so it is told not to."""
+    if session.get_bind().dialect.name == "sqlite":
+        plan = " ".join(row[-1] for row in session.execute(text(f"EXPLAIN QUERY PLAN {statement}")))
+    else:
+        session.execute(text("SET LOCAL enable_seqscan = off"))
+        plan = " ".join(row[0] for row in session.execute(text(f"EXPLAIN {statement}")))
+    assert "ix_observations_" in plan and "SCAN observations" not in plan and "Seq Scan" not in plan, plan
 
 
 def test_sample_is_spatially_balanced_capped_and_reads_little(session: Session) -> None:
