@@ -6,6 +6,7 @@ side by side. Everything it accepts goes to SQL first; the dispatcher only nudge
 
 from __future__ import annotations
 
+import functools
 import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -104,8 +105,9 @@ def create_app(
         dispatcher = NullDispatcher()
 
     @asynccontextmanager
-    async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         yield
+        app.state.frame_writer.close()  # stores what was already posted
         if owns_engine:
             engine.dispose()
 
@@ -123,7 +125,9 @@ def create_app(
     app.state.engine = engine
     app.state.session_factory = make_session_factory(engine)
     app.state.read_session_factory = make_session_factory(engine, read_only=True)
-    app.state.frame_writer = FrameWriter(app.state.session_factory)
+    app.state.frame_writer = FrameWriter(
+        app.state.session_factory, after_commit=functools.partial(frames.dispatch_stored, dispatcher)
+    )
     app.state.camera_cache = CameraCache(settings.camera_cache_ttl_s)
     app.state.dispatcher = dispatcher
     app.state.authenticator = Authenticator(

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import asyncio
 import re
 import uuid
+from collections.abc import Sequence
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, Path, Query, Request, Response, status
@@ -68,48 +70,59 @@ async def post_keypoints(
     """Store one frame's people, then nudge the workers: 202 with the frame's URL (200 for a retry).
 
     The measuring worker that picks the frame up also requests a calibration when the camera's evidence calls
-    for one, so this hot path makes one call to the queue.
+    for one, so this hot path makes one call to the queue (per camera and write batch).
 
     Posting the same client `frame_id` again returns the stored frame and stores nothing; if that frame is
     still pending it is dispatched again, which is how a client recovers from an earlier 503. When the queue
     is unreachable the answer is 503, but the frame is already committed and workers pick it up on start.
     """
-    # The body is parsed on the event loop (pydantic-core, no thread hop); the database and the queue get one
-    # trip to the thread pool between them.
-    return await run_in_threadpool(_store_keypoints, request.app.state, camera_id, body, response)
-
-
-def _store_keypoints(state: State, camera_id: str, body: KeypointFrame, response: Response) -> FrameAccepted:
-    settings: Settings = state.settings
-    camera = state.camera_cache.get(state.read_session_factory, camera_id)
+    # Everything but the database and the queue runs on the event loop (the body was parsed there too); those two
+    # are the frame writer's thread's, so a request crosses threads only there and back.
+    state: State = request.app.state
+    camera = state.camera_cache.cached(camera_id)
     if camera is None:
-        raise camera_not_found(camera_id)
-    # Checks and conversion happen before the writing transaction, which on SQLite holds the one write lock. The
-    # camera stays readable: closing a session detaches its objects without expiring them.
-    people = people_for_camera(body.people, camera, settings)
+        camera = await run_in_threadpool(state.camera_cache.get, state.read_session_factory, camera_id)
+        if camera is None:
+            raise camera_not_found(camera_id)
+    people = people_for_camera(body.people, camera, state.settings)
+    new = repository.NewKeypointFrame(
+        camera, body.timestamp, people, client_frame_id=body.frame_id, request_id=current_request_id()
+    )
     writer: FrameWriter = state.frame_writer
     try:
-        frame, created = writer.add(
-            repository.NewKeypointFrame(
-                camera, body.timestamp, people, client_frame_id=body.frame_id, request_id=current_request_id()
-            )
-        )
+        stored = await asyncio.wrap_future(writer.submit(new))
     except repository.CameraNotFoundError:
         raise camera_not_found(camera_id) from None  # deleted since it was read
-    if created:
+    frame = stored.frame
+    if stored.created:
         FRAMES_INGESTED.labels(source="keypoints").inc()
     url = frame_url(camera_id, frame.id)
-    if created or frame.status == "pending":
-        try:
-            state.dispatcher.frame_stored(camera_id, frame.id)
-        except UNAVAILABLE_ERRORS as exc:
-            raise queue_unavailable(
-                "the frame is stored and will be processed when the queue is back.",
-                exc,
-                frame_id=frame.id,
-                url=url,
-            ) from exc
-    return _accepted(frame, created, url, response)
+    if stored.after_commit_error is not None:
+        raise queue_unavailable(
+            "the frame is stored and will be processed when the queue is back.",
+            stored.after_commit_error,
+            frame_id=frame.id,
+            url=url,
+        ) from stored.after_commit_error
+    return _accepted(frame, stored.created, url, response)
+
+
+def dispatch_stored(dispatcher: Dispatcher, stored: Sequence[tuple[Frame, bool]]) -> list[BaseException | None]:
+    """The frame writer's after-commit step: have the batch's new (or still pending) frames measured, one request
+    per camera. Once the queue proves unreachable the rest of the batch is not tried: those frames share the
+    error, and each of their posts is answered 503 (the frames are stored; the workers find them on start)."""
+    outcome: dict[str, BaseException | None] = {}
+    failure: BaseException | None = None
+    for frame, created in stored:
+        if not (created or frame.status == "pending") or frame.camera_id in outcome:
+            continue
+        if failure is None:
+            try:
+                dispatcher.frame_stored(frame.camera_id, frame.id)
+            except UNAVAILABLE_ERRORS as exc:
+                failure = exc
+        outcome[frame.camera_id] = failure
+    return [outcome.get(frame.camera_id) if created or frame.status == "pending" else None for frame, created in stored]
 
 
 # --------------------------------------------------------------------------------------------------- images

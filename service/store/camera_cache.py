@@ -34,13 +34,20 @@ class CameraCache:
         self._clock = clock
         self._entries: dict[str, _Entry] = {}
 
+    def cached(self, camera_id: str) -> Camera | None:
+        """The camera if memory holds it fresh, else None (without reading: safe on the event loop)."""
+        entry = self._entries.get(camera_id)
+        if entry is not None and self._clock() < entry.expires_at:
+            return entry.camera
+        return None
+
     def get(self, sessions: Callable[[], Session], camera_id: str) -> Camera | None:
         """The camera, from memory while fresh, else read with a session from `sessions`; None if it does not
         exist."""
-        entry = self._entries.get(camera_id)
+        camera = self.cached(camera_id)
+        if camera is not None:
+            return camera
         now = self._clock()
-        if entry is not None and now < entry.expires_at:
-            return entry.camera
         with sessions() as session:
             camera = get_camera(session, camera_id)
         if camera is None:

@@ -9,10 +9,11 @@ from fastapi import FastAPI
 from fastapi.testclient import TestClient
 from sqlalchemy import func, select
 
-from service.dispatch import RecordingDispatcher
+from service.dispatch import DispatchUnavailableError, RecordingDispatcher
 from service.results import process_frame
+from service.routers.frames import dispatch_stored
 from service.store import repository
-from service.store.models import Observation
+from service.store.models import Frame, Observation
 from service.store.repository import CalibrationValues
 
 from .conftest import MIN_PEOPLE, assert_problem, coco_person, frame_body, standing
@@ -75,6 +76,27 @@ def test_queue_down_answers_503_and_keeps_the_frame(
     assert retry.status_code == 200 and retry.json()["frame_id"] == problem["frame_id"]
     assert dispatcher.frames == [(camera, uuid.UUID(problem["frame_id"]))]
     assert observation_count(app) == 2
+
+
+def test_a_write_batch_asks_once_per_camera_and_stops_at_the_first_queue_failure() -> None:
+    def stored(camera_id: str, status: str = "pending", created: bool = True) -> tuple[Frame, bool]:
+        return Frame(id=uuid.uuid4(), camera_id=camera_id, status=status), created
+
+    batch = [stored("a"), stored("b"), stored("a"), stored("c", "done", created=False), stored("b")]
+    dispatcher = RecordingDispatcher()
+    assert dispatch_stored(dispatcher, batch) == [None] * 5
+    assert [camera_id for camera_id, _ in dispatcher.frames] == ["a", "b"]  # the answered retry ("c") is not asked
+
+    class FailsAfterOne(RecordingDispatcher):
+        def frame_stored(self, camera_id: str, frame_id: uuid.UUID) -> None:
+            self.fail = bool(self.frames)
+            super().frame_stored(camera_id, frame_id)
+
+    failing = FailsAfterOne()
+    errors = dispatch_stored(failing, [stored("a"), stored("b"), stored("c"), stored("a")])
+    assert errors[0] is None and errors[3] is None
+    assert isinstance(errors[1], DispatchUnavailableError) and errors[2] is errors[1]  # "c" was not tried
+    assert [camera_id for camera_id, _ in failing.frames] == ["a"]
 
 
 def test_a_frame_makes_one_queue_call(client: TestClient, camera: str, dispatcher: RecordingDispatcher) -> None:

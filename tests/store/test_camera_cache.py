@@ -33,14 +33,16 @@ def test_a_camera_is_reused_until_its_time_is_up(engine: Engine) -> None:
         session.commit()
     clock = Clock()
     cache = CameraCache(ttl_s=2.0, clock=clock)
+    assert cache.cached("cam-1") is None  # `cached` never reads
     first = cache.get(sessions, "cam-1")
-    assert first is not None
+    assert first is not None and cache.cached("cam-1") is first
     width = first.image_width_px
     _resize(sessions, "cam-1", width + 100)
     clock.now += 1.9
     cached = cache.get(sessions, "cam-1")
     assert cached is first and cached.image_width_px == width  # still trusted
     clock.now += 0.2
+    assert cache.cached("cam-1") is None  # stale
     fresh = cache.get(sessions, "cam-1")
     assert fresh is not None and fresh.image_width_px == width + 100  # read again after ttl_s
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import threading
 import uuid
 from collections import Counter
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 
 import pytest
@@ -85,10 +86,10 @@ def test_concurrent_posts_are_batched_and_each_answered(
     with ThreadPoolExecutor(max_workers=16) as pool:
         answers = list(pool.map(writer.add, items))
     by_client: dict[str | None, set[uuid.UUID]] = {}
-    for item, (stored, _created) in zip(items, answers, strict=True):
-        by_client.setdefault(item.client_frame_id, set()).add(stored.id)
+    for item, answer in zip(items, answers, strict=True):
+        by_client.setdefault(item.client_frame_id, set()).add(answer.frame.id)
     assert all(len(ids) == 1 for ids in by_client.values())  # every retry got the same frame
-    assert Counter(created for _, created in answers) == {True: 40, False: 80}
+    assert Counter(answer.created for answer in answers) == {True: 40, False: 80}
     assert sum(batches) == 120 and max(batches) > 1  # frames that queued together went in together
     with factory() as session:
         assert count(session, Frame) == 40 and count(session, Observation) == 80
@@ -125,16 +126,16 @@ def test_a_failed_batch_fails_every_frame_in_it_and_no_waiter_hangs(factory: ses
 
 
 def test_small_batches_still_reach_every_waiter(factory: sessionmaker[Session]) -> None:
-    """With a batch cap smaller than the queue, leaders keep taking batches until their own frame is stored."""
+    """With a batch cap smaller than the queue, the writer keeps taking batches until every frame is stored."""
     cam = camera(factory)
     writer = FrameWriter(factory, max_batch=2)
     start = threading.Barrier(12)
 
     def post(index: int) -> uuid.UUID:
         start.wait()
-        stored, created = writer.add(frame(cam, f"s-{index}"))
-        assert created
-        return stored.id
+        answer = writer.add(frame(cam, f"s-{index}"))
+        assert answer.created
+        return answer.frame.id
 
     with ThreadPoolExecutor(max_workers=12) as pool:
         ids = list(pool.map(post, range(12)))
@@ -160,3 +161,53 @@ def test_client_frame_ids_are_per_camera_within_one_batch(factory: sessionmaker[
         assert count(session, Frame) == 4
         counts = {c.id: c.usable_evidence_count for c in session.query(Camera)}
         assert counts == {"cam-1": 4, "cam-2": 2, "cam-3": 2}  # two usable people per frame
+
+
+def test_after_commit_sees_each_batch_once_and_its_errors_reach_their_frames(factory: sessionmaker[Session]) -> None:
+    kept, gone = camera(factory, "kept"), camera(factory, "gone")
+    with factory() as session:
+        session.execute(delete(Camera).where(Camera.id == "gone"))
+        session.commit()
+    seen: list[list[str | None]] = []
+    problem = ConnectionError("queue unreachable")
+
+    def after_commit(stored: Sequence[tuple[Frame, bool]]) -> list[BaseException | None]:
+        seen.append([f.client_frame_id for f, _ in stored])
+        return [problem if f.client_frame_id == "k-2" else None for f, _ in stored]
+
+    writer = FrameWriter(factory, after_commit=after_commit)
+    with writer._wakeup:  # hold the thread back so that the three frames form one batch
+        futures = [writer.submit(frame(cam, cid)) for cam, cid in ((kept, "k-1"), (gone, "g-1"), (kept, "k-2"))]
+    answers = [future.exception(timeout=30) or future.result() for future in futures]
+    writer.close()
+    assert seen == [["k-1", "k-2"]]  # the refused frame is not passed on
+    assert isinstance(answers[1], CameraNotFoundError)
+    assert answers[0].after_commit_error is None and answers[2].after_commit_error is problem  # type: ignore[union-attr]
+    assert answers[2].created  # type: ignore[union-attr]
+
+
+def test_the_writer_survives_a_failing_after_commit_and_close_drains_the_queue(factory: sessionmaker[Session]) -> None:
+    cam = camera(factory)
+    calls = 0
+
+    def after_commit(stored: Sequence[tuple[Frame, bool]]) -> list[BaseException | None]:
+        nonlocal calls
+        calls += 1
+        if calls == 1:
+            raise RuntimeError("a bug in the hook")
+        return [None] * len(stored)
+
+    writer = FrameWriter(factory, after_commit=after_commit)
+    with pytest.raises(RuntimeError, match="bug in the hook"):
+        writer.add(frame(cam, "first"))  # stored, but its post is answered with the hook's error
+    with writer._wakeup:
+        queued = [writer.submit(frame(cam, f"later-{i}")) for i in range(5)]
+        cancelled = writer.submit(frame(cam, "cancelled"))
+        assert cancelled.cancel()  # its request went away before the writer took it
+    writer.close()
+    assert all(future.result(timeout=0).created for future in queued)
+    with pytest.raises(RuntimeError, match="closed"):
+        writer.submit(frame(cam, "too-late"))
+    with factory() as session:
+        stored = set(session.scalars(select(Frame.client_frame_id)))
+    assert stored == {"first", *(f"later-{i}" for i in range(5))}
