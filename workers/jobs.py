@@ -69,9 +69,13 @@ SKIPPED = "skipped"
 # Frames measured per read/compute/write round: large enough to amortise the transactions, small enough that
 # the write lock is held for milliseconds.
 FRAMES_CHUNK = 50
-# People keyed for sampling per transaction: shares index pages between many people while holding the write
-# lock for about as long as one batch of ingest.
+# People keyed for sampling per transaction: the first chunk, then as many as fit KEY_TRANSACTION_S. Keying shares
+# index pages between people when a camera's index is small (100 000 people: 11 us per person), but with a million
+# stored each person dirties pages of its own (41 us per person), and a fixed 2 000 would hold SQLite's one write
+# lock for 80 ms while the API waits to store frames.
 KEY_CHUNK = 2000
+KEY_CHUNK_BOUNDS = (100, 20_000)
+KEY_TRANSACTION_S = 0.02
 
 _engines: dict[tuple[int, str], tuple[Engine, sessionmaker[Session], sessionmaker[Session]]] = {}
 _P = ParamSpec("_P")
@@ -385,13 +389,17 @@ def calibrate_camera(camera_id: str, forced: bool = False) -> str:
 
 def key_camera_evidence(settings: Settings, camera_id: str) -> int:
     """Key every person the camera stored since its last solve, in short transactions; returns how many."""
-    total = 0
+    total, chunk = 0, KEY_CHUNK
     while True:
+        started = time.perf_counter()
         with _transaction(settings) as session:
-            keyed = key_new_evidence(session, camera_id, limit=KEY_CHUNK)
+            keyed = key_new_evidence(session, camera_id, limit=chunk)
         total += keyed
-        if keyed < KEY_CHUNK:
+        if keyed < chunk:
             return total
+        per_person_s = max(time.perf_counter() - started, 1e-6) / keyed
+        low, high = KEY_CHUNK_BOUNDS
+        chunk = min(max(int(KEY_TRANSACTION_S / per_person_s), low), high)
 
 
 def _solve(settings: Settings, dispatcher: RedisDispatcher, camera_id: str, *, forced: bool) -> str:

@@ -24,7 +24,7 @@ from service.queue import (
     connect,
 )
 from service.settings import get_settings
-from service.store import CalibrationVersion, Frame, ViolationEvent
+from service.store import CalibrationVersion, Frame, Observation, ViolationEvent
 from service.store.repository import CalibrationValues, calibration_history, current_calibration
 from tests.workers.conftest import run_jobs, simulated_camera, store_frames
 from workers import jobs
@@ -115,6 +115,34 @@ def test_a_measuring_job_over_its_budget_queues_its_own_rerun(
 
 
 # --------------------------------------------------------------------------------------------------- calibration gate
+
+
+def test_keying_takes_every_unkeyed_person_in_transactions_sized_to_the_time_bound(
+    sessions: sessionmaker[Session], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    camera = simulated_camera(sessions, people=300)
+    other = simulated_camera(sessions, "cam-2", people=40)
+    store_frames(sessions, camera, 30)
+    store_frames(sessions, other, 2)
+    limits: list[int] = []
+    real = jobs.key_new_evidence
+
+    def recording(session: Session, camera_id: str, *, limit: int) -> int:
+        limits.append(limit)
+        return real(session, camera_id, limit=limit)
+
+    monkeypatch.setattr(jobs, "key_new_evidence", recording)
+    monkeypatch.setattr(jobs, "KEY_CHUNK", 50)
+    monkeypatch.setattr(jobs, "KEY_CHUNK_BOUNDS", (7, 7))  # whatever the clock says, then 7 per transaction
+    people = select(Observation.camera_id, func.count()).group_by(Observation.camera_id)
+    with sessions() as session:
+        stored = dict(session.execute(people).all())
+    assert stored["cam-1"] > 50
+    assert jobs.key_camera_evidence(get_settings(), "cam-1") == stored["cam-1"]
+    assert limits[0] == 50 and set(limits[1:]) == {7} and len(limits) == 1 + -(-(stored["cam-1"] - 50 + 1) // 7)
+    with sessions() as session:
+        unkeyed = dict(session.execute(people.where(Observation.sample_key.is_(None))).all())
+    assert unkeyed == {"cam-2": stored["cam-2"]}  # other cameras wait for their own solve
 
 
 def test_gate_states_and_forced_flag(connection: redis.Redis) -> None:
