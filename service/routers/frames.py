@@ -111,10 +111,11 @@ def dispatch_stored(dispatcher: Dispatcher, stored: Sequence[tuple[Frame, bool]]
     """The frame writer's after-commit step: have the batch's new (or still pending) frames measured, one request
     per camera. Once the queue proves unreachable the rest of the batch is not tried: those frames share the
     error, and each of their posts is answered 503 (the frames are stored; the workers find them on start)."""
+    waiting = [created or frame.status == "pending" for frame, created in stored]
     outcome: dict[str, BaseException | None] = {}
     failure: BaseException | None = None
-    for frame, created in stored:
-        if not (created or frame.status == "pending") or frame.camera_id in outcome:
+    for (frame, _), wanted in zip(stored, waiting, strict=True):
+        if not wanted or frame.camera_id in outcome:
             continue
         if failure is None:
             try:
@@ -122,7 +123,7 @@ def dispatch_stored(dispatcher: Dispatcher, stored: Sequence[tuple[Frame, bool]]
             except UNAVAILABLE_ERRORS as exc:
                 failure = exc
         outcome[frame.camera_id] = failure
-    return [outcome.get(frame.camera_id) if created or frame.status == "pending" else None for frame, created in stored]
+    return [outcome[frame.camera_id] if wanted else None for (frame, _), wanted in zip(stored, waiting, strict=True)]
 
 
 # --------------------------------------------------------------------------------------------------- images
