@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import threading
 import uuid
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Protocol, runtime_checkable
@@ -26,8 +26,9 @@ class Dispatcher(Protocol):
     """Nudges for the workers. Every method must be cheap and idempotent: the API may call them again for the
     same frame or camera (client retries, a reset), and the implementation deduplicates."""
 
-    def frame_stored(self, camera_id: str, frame_id: uuid.UUID) -> None:
-        """A frame and its people are committed; measure it (now, or once the camera is calibrated)."""
+    def frames_stored(self, frames: Sequence[tuple[str, uuid.UUID]]) -> None:
+        """Frames (camera id, frame id) and their people are committed; measure them (now, or once their camera is
+        calibrated). The API calls this once per write batch, so it must cost one round trip, not one per frame."""
 
     def image_stored(self, camera_id: str, frame_id: uuid.UUID) -> None:
         """An image frame is committed; find its people (pose), then measure it."""
@@ -50,7 +51,7 @@ UNAVAILABLE_ERRORS: tuple[type[BaseException], ...] = (DispatchUnavailableError,
 class NullDispatcher:
     """Accepts everything and does nothing: for an API run without workers (frames then stay pending)."""
 
-    def frame_stored(self, camera_id: str, frame_id: uuid.UUID) -> None:
+    def frames_stored(self, frames: Sequence[tuple[str, uuid.UUID]]) -> None:
         return None
 
     def image_stored(self, camera_id: str, frame_id: uuid.UUID) -> None:
@@ -81,10 +82,10 @@ class RecordingDispatcher:
         if self.fail:
             raise DispatchUnavailableError("queue unreachable (RecordingDispatcher.fail is set)")
 
-    def frame_stored(self, camera_id: str, frame_id: uuid.UUID) -> None:
+    def frames_stored(self, frames: Sequence[tuple[str, uuid.UUID]]) -> None:
         self._check()
         with self._lock:
-            self.frames.append((camera_id, frame_id))
+            self.frames.extend(frames)
 
     def image_stored(self, camera_id: str, frame_id: uuid.UUID) -> None:
         self._check()

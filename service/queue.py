@@ -43,6 +43,7 @@ from redis.retry import Retry as ConnectionRetry
 from rq import Queue, Retry
 from rq.exceptions import InvalidJobOperation, NoSuchJobError
 from rq.job import Job, JobStatus
+from rq.queue import EnqueueData
 from rq.registry import ScheduledJobRegistry
 
 from service.dispatch import DispatchUnavailableError
@@ -231,6 +232,16 @@ class CameraGate:
         args = [job_id, self.queued_ttl_s, "1" if forced else "0"]
         return int(self._request(keys=self.keys(camera_id), args=args))
 
+    def request_many(self, requests: Sequence[tuple[str, str]]) -> list[int]:
+        """Register unforced requests, (camera id, job id) each, in one round trip; one RequestOutcome each.
+
+        Each request is still its own atomic script; only the round trips are shared, which is what a batch of
+        frames from many cameras costs: every wait for Redis is a wait for the API's GIL afterwards."""
+        pipe = self.connection.pipeline(transaction=False)
+        for camera_id, job_id in requests:
+            self._request(keys=self.keys(camera_id), args=[job_id, self.queued_ttl_s, "0"], client=pipe)
+        return [int(outcome) for outcome in pipe.execute()]
+
     def start(self, camera_id: str, job_id: str) -> Ticket:
         """Called by the job before it works: take the camera's running slot, and learn whether it was forced."""
         run, forced = self._start(keys=self.keys(camera_id), args=[job_id, self.queued_ttl_s, self.running_ttl_s])
@@ -320,16 +331,29 @@ class RedisDispatcher:
     def from_settings(cls, settings: Settings) -> RedisDispatcher:
         return cls(connect(redis_url(settings)))
 
-    def frame_stored(self, camera_id: str, frame_id: uuid.UUID) -> None:
-        """Have the camera's pending frames measured (this one among them); deduplicated per camera."""
-        self.measure_requested([camera_id])
+    def frames_stored(self, frames: Sequence[tuple[str, uuid.UUID]]) -> None:
+        """Have the cameras' pending frames measured (these among them); deduplicated per camera."""
+        self.measure_requested(camera_id for camera_id, _ in frames)
 
     def measure_requested(self, camera_ids: Iterable[str]) -> int:
-        """Ask for the pending frames of each camera to be measured; returns how many jobs were queued."""
+        """Ask for the pending frames of each camera to be measured, in two round trips at most (the gates, then
+        the jobs they granted); returns how many jobs were queued."""
+        cameras = list(dict.fromkeys(camera_ids))
+        if not cameras:
+            return 0
+        job_ids = [new_job_id(FRAMES_QUEUE, camera_id) for camera_id in cameras]
         try:
-            return sum(self.request(FRAMES_QUEUE, camera_id) == RequestOutcome.ENQUEUED for camera_id in camera_ids)
+            outcomes = self.gates[FRAMES_QUEUE].request_many(list(zip(cameras, job_ids, strict=True)))
+            granted = [
+                (camera_id, job_id)
+                for camera_id, job_id, outcome in zip(cameras, job_ids, outcomes, strict=True)
+                if outcome == RequestOutcome.ENQUEUED
+            ]
+            if granted:
+                self.queues[FRAMES_QUEUE].enqueue_many([self._job_data(FRAMES_QUEUE, *job) for job in granted])
         except _REDIS_ERRORS as exc:
             raise DispatchUnavailableError(f"job queue unavailable: {exc}") from exc
+        return len(granted)
 
     def image_stored(self, camera_id: str, frame_id: uuid.UUID) -> None:
         """Queue the image frame's pose job unless one is already waiting for it."""
@@ -410,13 +434,17 @@ class RedisDispatcher:
 
     def enqueue(self, kind: str, camera_id: str, job_id: str) -> None:
         """Queue a job whose slot the gate already granted (a new request, or a re-run a finished job owes)."""
+        self.queues[kind].enqueue_many([self._job_data(kind, camera_id, job_id)])
+
+    @staticmethod
+    def _job_data(kind: str, camera_id: str, job_id: str) -> EnqueueData:
         function, timeout_s = _JOBS[kind]
-        self.queues[kind].enqueue(
+        return Queue.prepare_data(
             function,
-            camera_id,
+            (camera_id,),
             job_id=job_id,
             description=f"{kind} of camera {camera_id}",
-            job_timeout=timeout_s,
+            timeout=timeout_s,
             result_ttl=0,
             failure_ttl=FAILED_JOB_TTL_S,
             retry=Retry(max=JOB_RETRIES),

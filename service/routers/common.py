@@ -6,6 +6,7 @@ import logging
 from collections.abc import Iterator, Sequence
 from typing import Annotated, Any
 
+import numpy as np
 from fastapi import Depends, Path, Request
 from sqlalchemy.orm import Session
 
@@ -96,6 +97,19 @@ def _outside(value: float, size_px: int) -> bool:
     return value < -margin or value > size_px + margin
 
 
+def _all_keypoints_near_image(people: Sequence[PersonObservation], size_px: tuple[int, int]) -> bool:
+    """The common case, checked in one numpy pass: every person posted as keypoints, all of them (or score 0)
+    within the margin. Checking 340 points one by one was a quarter of the event loop's time per frame; anything
+    else goes through the point-by-point checks that name each bad field."""
+    if not people or any(person.keypoints is None for person in people):
+        return False
+    points = np.array([person.keypoints for person in people], dtype=np.float64)  # (people, 17, [x, y, score])
+    margin = COORDINATE_MARGIN_FRACTION * np.asarray(size_px, dtype=np.float64)
+    xy = points[:, :, :2]
+    inside = np.all((xy >= -margin) & (xy <= np.asarray(size_px) + margin), axis=2)
+    return bool(np.all(inside | (points[:, :, 2] <= 0)))
+
+
 def people_for_camera(people: Sequence[PersonObservation], camera: Camera, settings: Settings) -> list[PersonIn]:
     """Posted people as store rows, after the checks that need the camera and the settings.
 
@@ -111,6 +125,8 @@ def people_for_camera(people: Sequence[PersonObservation], camera: Camera, setti
             "(setting max_people_per_frame).",
         )
     size = (camera.image_width_px, camera.image_height_px)
+    if _all_keypoints_near_image(people, size):
+        return [person_from_keypoints(person.keypoints, size) for person in people if person.keypoints is not None]
     errors: list[dict[str, Any]] = []
 
     def check(loc: list[Any], x: float, y: float) -> None:

@@ -108,22 +108,21 @@ async def post_keypoints(
 
 
 def dispatch_stored(dispatcher: Dispatcher, stored: Sequence[tuple[Frame, bool]]) -> list[BaseException | None]:
-    """The frame writer's after-commit step: have the batch's new (or still pending) frames measured, one request
-    per camera. Once the queue proves unreachable the rest of the batch is not tried: those frames share the
-    error, and each of their posts is answered 503 (the frames are stored; the workers find them on start)."""
+    """The frame writer's after-commit step: have the batch's new (or still pending) frames measured, with one
+    call to the queue for the whole batch (one frame named per camera). If the queue is unreachable, each of
+    those frames' posts is answered 503 (the frames are stored; the workers find them on start)."""
     waiting = [created or frame.status == "pending" for frame, created in stored]
-    outcome: dict[str, BaseException | None] = {}
-    failure: BaseException | None = None
+    first_per_camera: dict[str, uuid.UUID] = {}
     for (frame, _), wanted in zip(stored, waiting, strict=True):
-        if not wanted or frame.camera_id in outcome:
-            continue
-        if failure is None:
-            try:
-                dispatcher.frame_stored(frame.camera_id, frame.id)
-            except UNAVAILABLE_ERRORS as exc:
-                failure = exc
-        outcome[frame.camera_id] = failure
-    return [outcome[frame.camera_id] if wanted else None for (frame, _), wanted in zip(stored, waiting, strict=True)]
+        if wanted:
+            first_per_camera.setdefault(frame.camera_id, frame.id)
+    failure: BaseException | None = None
+    if first_per_camera:
+        try:
+            dispatcher.frames_stored(list(first_per_camera.items()))
+        except UNAVAILABLE_ERRORS as exc:
+            failure = exc
+    return [failure if wanted else None for wanted in waiting]
 
 
 # --------------------------------------------------------------------------------------------------- images

@@ -78,25 +78,22 @@ def test_queue_down_answers_503_and_keeps_the_frame(
     assert observation_count(app) == 2
 
 
-def test_a_write_batch_asks_once_per_camera_and_stops_at_the_first_queue_failure() -> None:
+def test_a_write_batch_makes_one_queue_call_naming_each_camera_once() -> None:
     def stored(camera_id: str, status: str = "pending", created: bool = True) -> tuple[Frame, bool]:
         return Frame(id=uuid.uuid4(), camera_id=camera_id, status=status), created
 
     batch = [stored("a"), stored("b"), stored("a"), stored("c", "done", created=False), stored("b")]
     dispatcher = RecordingDispatcher()
     assert dispatch_stored(dispatcher, batch) == [None] * 5
-    assert [camera_id for camera_id, _ in dispatcher.frames] == ["a", "b"]  # the answered retry ("c") is not asked
+    # The answered retry ("c") is not asked for; each camera is named by its first frame of the batch.
+    assert dispatcher.frames == [("a", batch[0][0].id), ("b", batch[1][0].id)]
 
-    class FailsAfterOne(RecordingDispatcher):
-        def frame_stored(self, camera_id: str, frame_id: uuid.UUID) -> None:
-            self.fail = bool(self.frames)
-            super().frame_stored(camera_id, frame_id)
-
-    failing = FailsAfterOne()
-    errors = dispatch_stored(failing, [stored("a"), stored("b"), stored("c"), stored("a")])
-    assert errors[0] is None and errors[3] is None
-    assert isinstance(errors[1], DispatchUnavailableError) and errors[2] is errors[1]  # "c" was not tried
-    assert [camera_id for camera_id, _ in failing.frames] == ["a"]
+    down = RecordingDispatcher(fail=True)
+    errors = dispatch_stored(down, batch)
+    assert isinstance(errors[0], DispatchUnavailableError)
+    assert [error is errors[0] for error in errors] == [True, True, True, False, True]
+    assert errors[3] is None  # a retry of a frame already measured needs no queue: its post is answered as usual
+    assert dispatch_stored(down, [stored("c", "done", created=False)]) == [None]  # and makes no call at all
 
 
 def test_a_frame_makes_one_queue_call(client: TestClient, camera: str, dispatcher: RecordingDispatcher) -> None:

@@ -148,5 +148,5 @@ def store_frames(
             )
             ids.append(frame.id)
         if dispatcher is not None:
-            dispatcher.frame_stored(camera.camera_id, ids[-1])
+            dispatcher.frames_stored([(camera.camera_id, ids[-1])])
     return ids

@@ -60,7 +60,7 @@ def test_redis_down_raises_dispatch_unavailable(tmp_path: Path) -> None:
     down = RedisDispatcher(connect(f"unix://{tmp_path / 'no-redis.sock'}", timeout_s=0.5))
     assert not down.ready()
     with pytest.raises(DispatchUnavailableError):
-        down.frame_stored("cam", uuid.uuid4())
+        down.frames_stored([("cam", uuid.uuid4())])
     with pytest.raises(DispatchUnavailableError):
         down.calibration_requested("cam", False)
 
@@ -162,6 +162,20 @@ def test_gate_states_and_forced_flag(connection: redis.Redis) -> None:
     assert gate.refresh("c", "j5") and not gate.refresh("c", "j-other")
     assert gate.finish("c", "j5", "j6") is False
     assert gate.state("c") == "idle"
+
+
+def test_a_batch_of_requests_is_one_round_trip_with_an_outcome_each(
+    connection: redis.Redis, dispatcher: RedisDispatcher
+) -> None:
+    gate = dispatcher.gates[FRAMES_QUEUE]
+    assert gate.request("running", "j0") == RequestOutcome.ENQUEUED
+    assert gate.start("running", "j0").run
+    outcomes = gate.request_many([("idle", "j1"), ("running", "j2"), ("idle", "j3")])
+    assert outcomes == [RequestOutcome.ENQUEUED, RequestOutcome.RERUN_SCHEDULED, RequestOutcome.ALREADY_QUEUED]
+    # Through the dispatcher: a camera named twice is asked once, and only granted slots become jobs.
+    assert dispatcher.measure_requested(["fresh", "idle", "fresh", "running"]) == 1
+    assert [job.args[0] for job in Queue(FRAMES_QUEUE, connection=connection).get_jobs()] == ["fresh"]
+    assert gate.state("fresh") == "queued" and gate.finish("running", "j0", "j4") is True
 
 
 def test_two_requests_make_one_solve(

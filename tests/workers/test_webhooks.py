@@ -119,7 +119,7 @@ def post_people(
         frame, _ = add_keypoint_frame(
             session, camera.camera_id, timestamp=at, people=persons, client_frame_id=client_frame_id
         )
-    dispatcher.frame_stored(camera.camera_id, frame.id)
+    dispatcher.frames_stored([(camera.camera_id, frame.id)])
     return frame.id
 
 
