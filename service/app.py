@@ -108,6 +108,7 @@ def create_app(
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         yield
         app.state.frame_writer.close()  # stores what was already posted
+        app.state.camera_cache.close()
         if owns_engine:
             engine.dispose()
 
@@ -128,7 +129,7 @@ def create_app(
     app.state.frame_writer = FrameWriter(
         app.state.session_factory, after_commit=functools.partial(frames.dispatch_stored, dispatcher)
     )
-    app.state.camera_cache = CameraCache(settings.camera_cache_ttl_s)
+    app.state.camera_cache = CameraCache(settings.camera_cache_ttl_s, app.state.read_session_factory)
     app.state.dispatcher = dispatcher
     app.state.authenticator = Authenticator(
         admin_key=None if settings.admin_key is None else settings.admin_key.get_secret_value(),

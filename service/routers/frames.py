@@ -81,7 +81,7 @@ async def post_keypoints(
     state: State = request.app.state
     camera = state.camera_cache.cached(camera_id)
     if camera is None:
-        camera = await run_in_threadpool(state.camera_cache.get, state.read_session_factory, camera_id)
+        camera = await run_in_threadpool(state.camera_cache.get, camera_id)
         if camera is None:
             raise camera_not_found(camera_id)
     people = people_for_camera(body.people, camera, state.settings)
