@@ -12,6 +12,7 @@ from sqlalchemy import func, select
 from service.dispatch import DispatchUnavailableError, RecordingDispatcher
 from service.results import process_frame
 from service.routers.frames import dispatch_stored
+from service.schemas import FrameOut
 from service.store import repository
 from service.store.models import Frame, Observation
 from service.store.repository import CalibrationValues
@@ -103,6 +104,7 @@ def test_a_frame_makes_one_queue_call(client: TestClient, camera: str, dispatche
     assert dispatcher.calibrations == []
 
 
+@pytest.mark.parametrize("backend", ["sqlite", "postgresql"])
 def test_frame_result_after_processing(client: TestClient, camera: str, app: FastAPI) -> None:
     people = [{"shoulder": [900, 400], "ankle": [900, 700]}, {"shoulder": [960, 400], "ankle": [960, 700]}]
     accepted = client.post(f"/v1/cameras/{camera}/keypoints", json=frame_body(people)).json()
@@ -116,7 +118,10 @@ def test_frame_result_after_processing(client: TestClient, camera: str, app: Fas
         assert frame is not None
         process_frame(session, frame, repository.get_camera(session, camera), cal)  # type: ignore[arg-type]
         session.commit()
-    frame_out = client.get(accepted["url"]).json()
+    answer = client.get(accepted["url"])
+    assert answer.headers["content-type"] == "application/json"
+    frame_out = answer.json()
+    assert FrameOut.model_validate(frame_out).result is not None  # the stored result, spliced in, is FrameOut's
     assert frame_out["status"] == "done" and frame_out["calibration_version"] == 1
     result = frame_out["result"]
     assert [p["placed_from"] for p in result["people"]] == ["ankles", "ankles"]
