@@ -411,13 +411,14 @@ def create_api() -> FastAPI:
     from service.observability.logs import configure_logging
     from service.observability.queue_depths import QueueDepths
     from service.queue import QUEUES, RedisDispatcher
+    from service.runtime import quiet_garbage_collector
     from service.settings import get_settings
 
     settings = get_settings()
     configure_logging(settings.log_format, settings.log_level)
     dispatcher = RedisDispatcher.from_settings(settings)
     app = create_app(settings, dispatcher=dispatcher, queue_depths=QueueDepths(dispatcher.connection, QUEUES))
-    _quiet_garbage_collector()
+    quiet_garbage_collector(API_GC_THRESHOLDS)
     return app
 
 
@@ -427,16 +428,6 @@ def create_api() -> FastAPI:
 # a 45 ms median. Frozen start-up objects and these thresholds brought p99 to 92-106 ms (10 000) and 96-97 ms
 # (50 000), and 320 to about 345 frames/s; the garbage waiting between collections is a few MB.
 API_GC_THRESHOLDS = (50_000, 20, 100)
-
-
-def _quiet_garbage_collector() -> None:
-    """Move everything built at start-up (modules, the app, pools) out of the collector's sight, and collect less
-    often: the API's garbage is short-lived and rarely cyclic."""
-    import gc
-
-    gc.collect()
-    gc.freeze()
-    gc.set_threshold(*API_GC_THRESHOLDS)
 
 
 def _log_options(log_format: str | None, log_level: str | None) -> None:

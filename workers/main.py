@@ -44,6 +44,7 @@ from service.queue import (
     redis_url,
     wait_for_redis,
 )
+from service.runtime import quiet_garbage_collector
 from service.settings import Settings, get_settings
 from service.store.models import utc_now
 from service.store.repository import calibration_due, cameras_with_pending_frames, frames_detecting, list_cameras
@@ -242,6 +243,7 @@ def run_worker(
         job_monitoring_interval=JOB_HEARTBEAT_S,
     )
     logging.getLogger("rq.worker").addFilter(_QUIET_MAINTENANCE)
+    quiet_garbage_collector()
     worker.work(burst=burst, logging_level=settings.log_level.upper(), with_scheduler=WEBHOOKS_QUEUE in queues)
     return requeued
 

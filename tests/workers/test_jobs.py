@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import uuid
 from pathlib import Path
 
@@ -362,7 +363,12 @@ def test_requeue_on_start_is_idempotent(
     assert second.calibrations == 1 and Queue(CALIBRATION_QUEUE, connection=connection).count == 1  # deduplicated
     assert Queue(FRAMES_QUEUE, connection=connection).count == 0
     # A worker start (burst: drain and exit) re-enqueues nothing twice and answers everything.
-    requeued = run_worker(burst=True)
+    gc.unfreeze()
+    try:
+        requeued = run_worker(burst=True)
+        assert gc.get_freeze_count() > 10_000  # start-up objects out of the collector's sight before the first job
+    finally:
+        gc.unfreeze()
     assert requeued.frames == 0
     assert _frame_statuses(sessions) == {"done": 5}
     assert [v.version for v in _versions(sessions, camera.camera_id)] == [1]
