@@ -97,6 +97,22 @@ def _print_report(
         console.print(f"\nwrote {markdown}", highlight=False)
 
 
+def default_process_split(cpus: int | None = None) -> tuple[int, int]:
+    """(API processes, workers) for `serve` when not given: two API processes, the other cores' worth of workers
+    (at least one).
+
+    The API is bound by its GIL: one process stays near 0.9 of a core however many cores are free. Under
+    `posemetry bench load` on 2 cores, one API process and two workers gave a keypoint p99 of 188-287 ms; two API
+    processes and one worker 102-105 ms, the one worker measuring every frame (it takes more frames per job when
+    it falls behind) and the frames' time to `done` unchanged."""
+    cpus = cpus or os.cpu_count() or 1
+    api_processes = min(2, cpus)
+    return api_processes, max(1, cpus - api_processes)
+
+
+_SPLIT_HELP = "Default: two API processes and the rest of the CPUs as workers (at least one)."
+
+
 @bench_app.command("geometry")
 def bench_geometry(
     trials: int | None = typer.Option(
@@ -141,8 +157,12 @@ def bench_ingest(
     seconds: float = typer.Option(20.0, min=1.0, help="Measured ingest time."),
     concurrency: int = typer.Option(16, min=1, help="Client threads posting frames, each on its own connection."),
     cameras: int = typer.Option(4, min=1, help="Cameras the frames are spread over."),
-    workers: int = typer.Option(2, min=1, help="Worker processes of the `posemetry serve` under test."),
-    api_processes: int = typer.Option(1, min=1, help="API processes of the `posemetry serve` under test."),
+    workers: int | None = typer.Option(
+        None, min=1, help="Worker processes of the `posemetry serve` under test. " + _SPLIT_HELP
+    ),
+    api_processes: int | None = typer.Option(
+        None, min=1, help="API processes of the `posemetry serve` under test. " + _SPLIT_HELP
+    ),
     payload: str = typer.Option("coco17", help="Person format: coco17 (17 keypoints) or centres (shoulder/ankle)."),
     warmup: float = typer.Option(2.0, min=0.0, help="Unmeasured ingest before the measured run, in seconds."),
     big: bool = typer.Option(False, "--big", help="Also time the calibration job at 10^6 stored observations."),
@@ -153,6 +173,9 @@ def bench_ingest(
 ) -> None:
     """Keypoint-frame ingest throughput and latency of `posemetry serve`, and calibration-job time vs evidence."""
     from service.bench.ingest import PAYLOADS, ingest_lines, run_ingest
+
+    default_api, default_workers = default_process_split()
+    workers, api_processes = workers or default_workers, api_processes or default_api
 
     if payload not in PAYLOADS:
         raise typer.BadParameter(f"choose from {', '.join(PAYLOADS)}", param_hint="--payload")
@@ -210,8 +233,12 @@ def bench_load(
     distance_queries: float = typer.Option(10.0, min=0.0, help="POST .../distances per second."),
     follow_every: int = typer.Option(20, min=1, help="Follow one keypoint frame in N to `done` (GET frame)."),
     webhook_cameras: int = typer.Option(2, min=0, help="Cameras a webhook subscription covers (0: no webhook)."),
-    workers: int = typer.Option(2, min=1, help="Worker processes of the `posemetry serve` under test."),
-    api_processes: int = typer.Option(1, min=1, help="API processes of the `posemetry serve` under test."),
+    workers: int | None = typer.Option(
+        None, min=1, help="Worker processes of the `posemetry serve` under test. " + _SPLIT_HELP
+    ),
+    api_processes: int | None = typer.Option(
+        None, min=1, help="API processes of the `posemetry serve` under test. " + _SPLIT_HELP
+    ),
     database_url: str | None = typer.Option(
         None, help="Serve on this database (e.g. PostgreSQL) instead of SQLite; with --url: read its backlog."
     ),
@@ -238,6 +265,7 @@ def bench_load(
 
     if payload not in PAYLOADS:
         raise typer.BadParameter(f"choose from {', '.join(PAYLOADS)}", param_hint="--payload")
+    default_api, default_workers = default_process_split()
     options = LoadOptions(
         seconds=seconds,
         warmup_s=warmup,
@@ -256,8 +284,8 @@ def bench_load(
         distance_queries_per_s=distance_queries,
         follow_every=follow_every,
         webhook_cameras=min(webhook_cameras, cameras),
-        workers=workers,
-        api_processes=api_processes,
+        workers=workers or default_workers,
+        api_processes=api_processes or default_api,
         database_url=database_url,
         url=url,
         admin_key=admin_key if url else None,
@@ -549,8 +577,12 @@ def _run_api(host: str, port: int, processes: int, log_level: str) -> None:
 def serve(
     host: str = typer.Option(DEFAULT_HOST, help="Interface to listen on (0.0.0.0 for all)."),
     port: int = typer.Option(DEFAULT_PORT, min=0, max=65535, help="TCP port."),
-    workers: int = typer.Option(2, "--workers", min=1, help="Worker processes (each serves every queue)."),
-    api_processes: int = typer.Option(1, "--api-processes", min=1, help="uvicorn processes serving the API."),
+    workers: int | None = typer.Option(
+        None, "--workers", min=1, help="Worker processes (each serves every queue). " + _SPLIT_HELP
+    ),
+    api_processes: int | None = typer.Option(
+        None, "--api-processes", min=1, help="uvicorn processes serving the API. " + _SPLIT_HELP
+    ),
     worker_nice: int = typer.Option(
         10,
         min=0,
@@ -594,6 +626,9 @@ def serve(
     # found: with Python's defaults that would kill this process before the workers and Redis are stopped.
     stop_signals: list[int] = []
     previous = {sig: signal.signal(sig, lambda signum, _frame: stop_signals.append(signum)) for sig in _STOP_SIGNALS}
+    default_api, default_workers = default_process_split()
+    workers = workers or default_workers
+    api_processes = api_processes or default_api
     pool = _WorkerPool(workers, worker_nice, redis=embedded)
     try:
         pool.start()

@@ -77,6 +77,10 @@ LOOPBACK = "127.0.0.0/8"
 _TRANSPORT_ERRORS = (HttpError, OSError, TimeoutError)
 
 
+# The longest interval between two polls of a followed frame (the interval doubles from follow_poll_s).
+FOLLOW_MAX_POLL_S = 4.0
+
+
 @dataclass(frozen=True)
 class LoadOptions:
     seconds: float = 60.0
@@ -96,11 +100,11 @@ class LoadOptions:
     calibration_polls_per_s: float = 25.0
     distance_queries_per_s: float = 10.0
     follow_every: int = 20  # one keypoint frame in N is followed to `done` (every image frame is)
-    follow_poll_s: float = 0.25
+    follow_poll_s: float = 0.25  # a followed frame's first poll, and the longest wait for a new one to be seen
     metrics_every_s: float = 5.0
     webhook_cameras: int = 2
-    workers: int = 2
-    api_processes: int = 1
+    workers: int = 1
+    api_processes: int = 2  # `posemetry serve`'s split on 2 CPUs (the CLI passes its default for this machine)
     database_url: str | None = None
     url: str | None = None  # an already running deployment instead of a `posemetry serve` of our own
     admin_key: str | None = None
@@ -368,29 +372,37 @@ class LoadRun:
         connection.close()
 
     async def follow_frames(self, until: asyncio.Event) -> None:
-        """GET every followed frame, round after round, until it is done (or `until` is set). The time to `done`
-        is the server's `processed_at` minus the client's send time, so the polling interval does not blur it."""
+        """GET each followed frame until it is done (or `until` is set): first `follow_poll_s` after it is seen,
+        then at doubling intervals up to FOLLOW_MAX_POLL_S, as a client waiting for a result would. The time to
+        `done` is the server's `processed_at` minus the client's send time, so the polling interval does not blur
+        it. (Polling every followed frame every round made this a closed loop whose load grew with the server's
+        speed: 53 GET/s, then 115 once the API answered faster, most of them for image frames waiting for pose.)"""
         connection = self._connection()
         loop = asyncio.get_running_loop()
+        due: dict[tuple[str, str], tuple[float, float]] = {}  # followed frame -> (next poll, interval), loop time
         while not until.is_set():
-            started = loop.time()
             for key in list(self.followed):
+                poll_at, interval = due.setdefault(key, (loop.time() + self.options.follow_poll_s, 0.0))
+                if poll_at > loop.time():
+                    continue
                 camera_id, frame_id = key
                 path = f"/v1/cameras/{camera_id}/frames/{frame_id}"
                 response = await self._send(GET_FRAME, connection, loop.time(), "GET", path)
-                if response is None or response.status != 200:
+                frame = json.loads(response.body) if response is not None and response.status == 200 else None
+                if frame is None or frame["status"] not in ("done", "failed"):
+                    interval = min(2 * interval or self.options.follow_poll_s, FOLLOW_MAX_POLL_S)
+                    due[key] = (loop.time() + interval, interval)
                     continue
-                frame = json.loads(response.body)
-                if frame["status"] not in ("done", "failed"):
-                    continue
+                del due[key]
                 sent_wall, image = self.followed.pop(key)
                 followed = self.images_done if image else self.keypoints_done
                 if frame["status"] == "failed":
                     followed.failed += 1
                 else:
                     followed.done_s.append(datetime.fromisoformat(frame["processed_at"]).timestamp() - sent_wall)
+            next_poll = min((poll_at for poll_at, _ in due.values()), default=loop.time() + self.options.follow_poll_s)
             try:
-                await asyncio.wait_for(until.wait(), max(self.options.follow_poll_s - (loop.time() - started), 0.0))
+                await asyncio.wait_for(until.wait(), min(max(next_poll - loop.time(), 0.0), self.options.follow_poll_s))
             except TimeoutError:
                 pass
         for _sent, image in self.followed.values():
