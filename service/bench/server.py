@@ -30,6 +30,12 @@ WORKERS = "workers"
 REDIS = "redis"
 
 
+def process_counts(api_processes: int, workers: int) -> str:
+    """How the reports name a `serve` under test: "2 API processes, 1 worker"."""
+    api = f"{api_processes} API process{'es' if api_processes != 1 else ''}"
+    return f"{api}, {workers} worker{'s' if workers != 1 else ''}"
+
+
 def free_port() -> int:
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
