@@ -21,6 +21,14 @@ class Clock:
         return self.now
 
 
+def _with_camera(engine: Engine, camera_id: str) -> sessionmaker[Session]:
+    sessions = make_session_factory(engine)
+    with sessions() as session:
+        add_camera(session, camera_id)
+        session.commit()
+    return sessions
+
+
 def _resize(sessions: sessionmaker[Session], camera_id: str, width_px: int) -> None:
     """Another process's change: straight to the database, past the cache."""
     with sessions() as session, session.begin():
@@ -28,10 +36,7 @@ def _resize(sessions: sessionmaker[Session], camera_id: str, width_px: int) -> N
 
 
 def test_a_camera_is_reused_until_its_time_is_up_then_refreshed_behind_the_requests(engine: Engine) -> None:
-    sessions = make_session_factory(engine)
-    with sessions() as session:
-        add_camera(session, "cam-1")
-        session.commit()
+    sessions = _with_camera(engine, "cam-1")
     clock = Clock()
     cache = CameraCache(ttl_s=2.0, sessions=sessions, clock=clock)
     assert cache.cached("cam-1") is None  # `cached` never reads
@@ -54,10 +59,7 @@ def test_a_camera_is_reused_until_its_time_is_up_then_refreshed_behind_the_reque
 
 
 def test_an_entry_whose_refresh_failed_is_read_by_the_request_once_twice_too_old(engine: Engine) -> None:
-    sessions = make_session_factory(engine)
-    with sessions() as session:
-        add_camera(session, "cam-1")
-        session.commit()
+    sessions = _with_camera(engine, "cam-1")
     clock = Clock()
     failing = False
 
@@ -82,10 +84,7 @@ def test_an_entry_whose_refresh_failed_is_read_by_the_request_once_twice_too_old
 
 
 def test_a_refresh_that_read_before_a_forget_stores_nothing(engine: Engine) -> None:
-    sessions = make_session_factory(engine)
-    with sessions() as session:
-        add_camera(session, "cam-1")
-        session.commit()
+    sessions = _with_camera(engine, "cam-1")
 
     def forgotten_meanwhile() -> Session:
         cache.forget("cam-1")  # this process changed the camera while the read was under way
@@ -97,10 +96,7 @@ def test_a_refresh_that_read_before_a_forget_stores_nothing(engine: Engine) -> N
 
 
 def test_forget_and_a_zero_ttl_read_again(engine: Engine) -> None:
-    sessions = make_session_factory(engine)
-    with sessions() as session:
-        add_camera(session, "cam-1")
-        session.commit()
+    sessions = _with_camera(engine, "cam-1")
     cache = CameraCache(ttl_s=60.0, sessions=sessions, clock=Clock())
     width = cache.get("cam-1").image_width_px  # type: ignore[union-attr]
     _resize(sessions, "cam-1", width + 1)
