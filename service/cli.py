@@ -632,7 +632,7 @@ def serve(
     pool = _WorkerPool(workers, worker_nice, redis=embedded)
     try:
         pool.start()
-        log.info("%d workers started; API on http://%s:%d", workers, host, port)
+        log.info("started %d worker(s); API on http://%s:%d, %d process(es)", workers, host, port, api_processes)
         if not stop_signals:
             _run_api(host, port, api_processes, settings.log_level)
     finally:
