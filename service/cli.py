@@ -26,7 +26,7 @@ if TYPE_CHECKING:
 
     from fastapi import FastAPI
 
-    from service.bench.report import ReportTable
+    from bench.report import ReportTable
     from service.embedded_redis import EmbeddedRedis
 
 app = typer.Typer(
@@ -75,7 +75,7 @@ def _print_report(
     title: str, header: Sequence[str], tables: Sequence[ReportTable], footer: Sequence[str], markdown: Path | None
 ) -> None:
     """A benchmark's header lines, tables and footer lines on stdout, and optionally as a Markdown file."""
-    from service.bench.report import markdown_document, to_rich
+    from bench.report import markdown_document, to_rich
 
     console = Console()
     if not console.is_terminal:
@@ -130,7 +130,7 @@ def bench_geometry(
     markdown: Path | None = typer.Option(None, help="Also write the tables as Markdown to this file."),
 ) -> None:
     """Accuracy of calibrate() on simulated scenes (paper Sect. 4.1, Tables 1-3) and its speed."""
-    from service.bench.geometry import BenchmarkOptions, parse_only, run_benchmark
+    from bench.geometry import BenchmarkOptions, parse_only, run_benchmark
 
     try:
         selected = parse_only(only)
@@ -172,7 +172,7 @@ def bench_ingest(
     seed: int = typer.Option(0, min=0, help="Seed of the simulated scenes."),
 ) -> None:
     """Keypoint-frame ingest throughput and latency of `posemetry serve`, and calibration-job time vs evidence."""
-    from service.bench.ingest import PAYLOADS, ingest_lines, run_ingest
+    from bench.ingest import PAYLOADS, ingest_lines, run_ingest
 
     default_api, default_workers = default_process_split()
     workers, api_processes = workers or default_workers, api_processes or default_api
@@ -212,7 +212,7 @@ def bench_ingest(
     if not skip_calibration:
         # The job under test belongs to the workers package, which the service never imports: run it as a process.
         sizes = ["1000", "100000"] + (["1000000"] if big else [])
-        command = [sys.executable, "-m", "workers.bench", "--sizes", *sizes, "--repeats", str(repeats)]
+        command = [sys.executable, "-m", "bench.calibration_job", "--sizes", *sizes, "--repeats", str(repeats)]
         code = subprocess.run([*command, "--seed", str(seed)], check=False).returncode
         if code:
             raise typer.Exit(code)
@@ -259,9 +259,9 @@ def bench_load(
     seed: int = typer.Option(0, min=0, help="Seed of the simulated scenes."),
 ) -> None:
     """Mixed load on `posemetry serve`: keypoint cameras, image cameras, dashboards, distance queries, webhooks."""
-    from service.bench.frames import PAYLOADS
-    from service.bench.load import LoadOptions, run_load
-    from service.bench.load_report import footer, header, tables
+    from bench.frames import PAYLOADS
+    from bench.load import LoadOptions, run_load
+    from bench.load_report import footer, header, tables
 
     if payload not in PAYLOADS:
         raise typer.BadParameter(f"choose from {', '.join(PAYLOADS)}", param_hint="--payload")
@@ -309,7 +309,7 @@ def bench_pose(
     threads: int | None = typer.Option(None, min=1, help="Inference threads (default: every core)."),
 ) -> None:
     """Pose throughput per frame: detector and pose split, Thunder and Lightning, concurrent crops vs a plain loop."""
-    from service.bench.pose import pose_lines, run_pose_benchmark
+    from bench.pose import pose_lines, run_pose_benchmark
     from service.settings import get_settings
 
     settings = get_settings()
@@ -386,7 +386,7 @@ def bench_telemetry(
     rounds: int = typer.Option(5, min=1, help="Rounds per configuration (the minimum is reported)."),
 ) -> None:
     """CPU cost per request of the request-id, metrics and access-log middleware."""
-    from service.bench.telemetry import telemetry_lines
+    from bench.telemetry import telemetry_lines
 
     typer.echo(f"posemetry telemetry benchmark ({os.cpu_count()} CPUs, Python {sys.version.split()[0]})")
     typer.echo("\n".join(telemetry_lines(requests, rounds)))

@@ -16,7 +16,7 @@ def test_two_api_processes_and_the_other_cores_as_workers(cpus: int, split: tupl
 
 
 def test_reports_name_the_split_in_words() -> None:
-    from service.bench.server import process_counts
+    from bench.server import process_counts
 
     assert process_counts(2, 1) == "2 API processes, 1 worker"
     assert process_counts(1, 3) == "1 API process, 3 workers"

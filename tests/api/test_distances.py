@@ -7,8 +7,8 @@ import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
+from bench.simulate import SceneConfig, draw_scene
 from service.geometry import calibrate
-from service.geometry.simulate import SceneConfig, draw_scene
 from service.store import repository
 from service.store.repository import CalibrationValues
 

@@ -7,8 +7,8 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from service.bench.geometry import EXPERIMENTS, BenchmarkOptions, parse_only, run_benchmark
-from service.bench.report import ReportTable
+from bench.geometry import EXPERIMENTS, BenchmarkOptions, parse_only, run_benchmark
+from bench.report import ReportTable
 from service.cli import app
 
 
@@ -111,7 +111,7 @@ def test_cli_version() -> None:
 
 def test_capped_experiment_keeps_every_setting_aligned(monkeypatch: pytest.MonkeyPatch) -> None:
     """An experiment that runs fewer trials than --trials (distortion) still fills every row of its table."""
-    import service.bench.geometry as bench
+    import bench.geometry as bench
 
     monkeypatch.setattr(bench, "DISTORTION_MAX_TRIALS", 1)
     (table,) = run_benchmark(BenchmarkOptions(trials=2, workers=1, only=("distortion",))).tables

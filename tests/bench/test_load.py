@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from service.bench.frames import coco17_keypoints, walking_cameras
-from service.bench.http_client import Connection, HttpError, serve
-from service.bench.load_stats import KindStats
-from service.bench.metrics_text import delta_by, parse_metrics
-from service.bench.profile import ProfileSummary
+from bench.frames import coco17_keypoints, walking_cameras
+from bench.http_client import Connection, HttpError, serve
+from bench.load_stats import KindStats
+from bench.metrics_text import delta_by, parse_metrics
+from bench.profile import ProfileSummary
 from service.cli import app
 from tests.shared import TOWN_CENTRE, model_dir_path, require_dir
 

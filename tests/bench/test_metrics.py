@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from service.bench.geometry import (
+from bench.geometry import (
     Setting,
     TrialResult,
     angle_deg,
@@ -21,8 +21,8 @@ from service.bench.geometry import (
     summarise,
     without_outliers,
 )
+from bench.simulate import Scene, SceneConfig, draw_scene
 from service.geometry import Calibration
-from service.geometry.simulate import Scene, SceneConfig, draw_scene
 
 
 def exact_calibration(scene: Scene, **changes: object) -> Calibration:

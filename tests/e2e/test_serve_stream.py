@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from service.geometry.simulate import SceneConfig, draw_scene
+from bench.simulate import SceneConfig, draw_scene
 from tests.api.conftest import coco_person
 from tests.serving import clean_environment, serve
 

@@ -31,8 +31,8 @@ from rq import Worker
 from rq.executions import Execution
 from rq.registry import StartedJobRegistry
 
+from bench.simulate import Scene, SceneConfig, draw_scene
 from service.embedded_redis import redis_server_binary
-from service.geometry.simulate import Scene, SceneConfig, draw_scene
 from service.problems import PROBLEM_MEDIA_TYPE
 from tests.serving import REPO, free_port, stop
 

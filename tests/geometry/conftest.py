@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.geometry.simulate import Scene, SceneConfig, draw_scene
+from bench.simulate import Scene, SceneConfig, draw_scene
 
 
 def angle_deg(a: np.ndarray, b: np.ndarray) -> float:

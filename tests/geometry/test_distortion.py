@@ -7,6 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from bench.simulate import Scene, SceneConfig, draw_scene
 from service.geometry import CalibrationError, calibrate, measure
 from service.geometry.distortion import (
     collinearity_roots,
@@ -18,7 +19,6 @@ from service.geometry.distortion import (
     undistort,
 )
 from service.geometry.frame import FloatArray, ImageFrame
-from service.geometry.simulate import Scene, SceneConfig, draw_scene
 
 from .conftest import angle_deg
 

@@ -7,10 +7,10 @@ import itertools
 import numpy as np
 import pytest
 
+from bench.simulate import SceneConfig, draw_scene
 from service.geometry import CalibrationError, calibrate
 from service.geometry.frame import ImageFrame, homogeneous
 from service.geometry.linear import focal_weights, scaled_depths, solve_linear, vanishing_point
-from service.geometry.simulate import SceneConfig, draw_scene
 
 from .conftest import angle_deg, scene
 

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from bench.simulate import SceneConfig, draw_scene
 from service.geometry import CalibrationError, calibrate
 from service.geometry.reconstruct import pairwise_distances
-from service.geometry.simulate import SceneConfig, draw_scene
 
 from .conftest import angle_deg
 

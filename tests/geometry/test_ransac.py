@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from bench.simulate import OUTLIER_KINDS
 from service.geometry import calibrate
 from service.geometry.frame import ImageFrame, homogeneous
 from service.geometry.ransac import RansacSettings, _required_iterations, score_hypotheses, solve_minimal
-from service.geometry.simulate import OUTLIER_KINDS
 
 from .conftest import angle_deg, scene
 

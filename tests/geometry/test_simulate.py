@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.geometry.simulate import SceneConfig, draw_scene, project
+from bench.simulate import SceneConfig, draw_scene, project
 
 
 @pytest.mark.parametrize("config", [SceneConfig.paper(noise_px=0.0), SceneConfig.surveillance(noise_px=0.0)])

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from service.bench.pose import pose_lines, run_pose_benchmark
+from bench.pose import pose_lines, run_pose_benchmark
 
 
 def test_pose_benchmark_on_one_frame(model_dir: Path, town_dir: Path, tmp_path: Path) -> None:

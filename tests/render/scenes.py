@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from bench.simulate import Scene, SceneConfig, draw_scene
 from service.geometry.calibration import Calibration
-from service.geometry.simulate import Scene, SceneConfig, draw_scene
 from service.results import compute_frame_result
 from service.schemas import FrameResult
 from service.store.models import CalibrationVersion

@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from service.geometry.simulate import project
+from bench.simulate import project
 from service.render.ground import GroundFrame, clip_line_to_polygon, ground_axes
 from tests.render.scenes import calibration_of, people_of, result_of, tilted_scene
 

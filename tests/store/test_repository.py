@@ -534,8 +534,8 @@ def test_the_database_allows_one_current_version_per_camera(session: Session) ->
 def test_a_geometry_solution_round_trips_with_non_finite_values_as_null(session: Session) -> None:
     from dataclasses import replace
 
+    from bench.simulate import SceneConfig, draw_scene
     from service.geometry import calibrate
-    from service.geometry.simulate import SceneConfig, draw_scene
 
     scene = draw_scene(replace(SceneConfig(), n_people=60, image_size=(800, 800)), np.random.default_rng(3))
     solution = calibrate(scene.tops_px, scene.bottoms_px, image_size=(800, 800), height=1.7)

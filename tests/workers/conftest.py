@@ -20,7 +20,7 @@ import redis
 from rq import Queue, SimpleWorker
 from sqlalchemy.orm import Session, sessionmaker
 
-from service.geometry.simulate import Scene, SceneConfig, draw_scene
+from bench.simulate import Scene, SceneConfig, draw_scene
 from service.keypoints import person_from_centres
 from service.queue import QUEUES, EmbeddedRedis, RedisDispatcher, connect
 from service.settings import get_settings

@@ -28,8 +28,8 @@ from typing import Any, Final
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from bench.simulate import Scene, SceneConfig, draw_scene
 from service.geometry import Calibration, CalibrationError, calibrate
-from service.geometry.simulate import Scene, SceneConfig, draw_scene
 
 from . import paper
 from .paper_literal import calibrate_paper_literal

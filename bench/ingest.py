@@ -4,7 +4,7 @@ Two measurements, both on this machine:
 
 - Ingest: `posemetry serve` (embedded mode: SQLite, embedded Redis, its workers and the API) is started as a
   subprocess on a temporary data directory and a free port, cameras are created, and simulated keypoint frames
-  (service.geometry.simulate's surveillance preset, 20 people per frame) are POSTed by `concurrency` client
+  (bench.simulate's surveillance preset, 20 people per frame) are POSTed by `concurrency` client
   threads on keep-alive connections for a fixed time, with a camera-scoped API key stored in the database (so
   each request pays for authentication as a camera gateway's would: the key cache, not the admin setting).
   Throughput counts accepted frames (202); latency is per request, client side. The workers run alongside,

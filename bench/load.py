@@ -2,9 +2,9 @@
 
 What runs, on loopback, for a measured window (60 s by default) after a warm-up:
 
-- **Cameras posting keypoints**: 50 cameras, each its own simulated scene (service.geometry.simulate's
+- **Cameras posting keypoints**: 50 cameras, each its own simulated scene (bench.simulate's
   surveillance preset: its own mounting height, tilt and field of view) with 20 people walking through it
-  (service.bench.frames), each posting COCO-17 frames at 6 frames/s: 300 frames/s in all, the issue's target.
+  (bench.frames), each posting COCO-17 frames at 6 frames/s: 300 frames/s in all, the issue's target.
 - **Cameras posting images**: a few cameras posting real Oxford Town Centre JPEGs (1920x1080) at a low rate; the
   pose workers find the people with the real ONNX models.
 - **Dashboards** polling every camera's calibration status, **distance queries** (`POST .../distances`, keypoints
@@ -22,7 +22,7 @@ Latency is measured from the send; how late a request left its schedule (its con
 client itself behind) is measured apart, and the keypoint table also gives the latency from the schedule.
 
 **The client is measured too.** It is one process with one event loop (uvloop), pre-encoded bodies and a lean
-HTTP client (service.bench.http_client); its CPU time, and that of every other process on the machine, is
+HTTP client (bench.http_client); its CPU time, and that of every other process on the machine, is
 reported next to the server's, so a reader can tell a slow server from a starved one.
 
 Against another deployment (`--url`), the same load runs without the per-process CPU split (and, without

@@ -97,7 +97,7 @@ def measure_multiprocess(requests: int, rounds: int) -> TelemetryCost:
     """`measure` in a child process with PROMETHEUS_MULTIPROC_DIR set (the mode `posemetry serve` runs in)."""
     with tempfile.TemporaryDirectory(prefix="posemetry-bench-metrics-") as directory:
         env = {**os.environ, "PROMETHEUS_MULTIPROC_DIR": directory}
-        command = [sys.executable, "-m", "service.bench.telemetry", str(requests), str(rounds)]
+        command = [sys.executable, "-m", "bench.telemetry", str(requests), str(rounds)]
         output = subprocess.run(command, env=env, check=True, capture_output=True, text=True).stdout
     return TelemetryCost(**json.loads(output))
 

@@ -1,4 +1,4 @@
-"""The load benchmark's figures as tables (terminal and Markdown alike, via service.bench.report)."""
+"""The load benchmark's figures as tables (terminal and Markdown alike, via bench.report)."""
 
 from __future__ import annotations
 

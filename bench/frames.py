@@ -1,6 +1,6 @@
 """Simulated keypoint frames for the speed benchmarks, encoded once before a run so that posting costs no JSON work.
 
-Two kinds of camera, both from service.geometry.simulate (surveillance preset: the truth is a real pinhole camera
+Two kinds of camera, both from bench.simulate (surveillance preset: the truth is a real pinhole camera
 over a ground plane, with pixel noise and a spread of heights):
 
 - `simulated_frames`: every frame a fresh draw of people (the ingest benchmark: only the cost of a frame matters).
@@ -20,7 +20,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from service.geometry.simulate import Scene, SceneConfig, draw_scene, project
+from bench.simulate import Scene, SceneConfig, draw_scene, project
 
 PEOPLE_PER_FRAME = 20
 PAYLOADS = ("coco17", "centres")

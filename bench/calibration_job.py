@@ -1,4 +1,4 @@
-"""Calibration-job timing against stored evidence: `python -m workers.bench` (run by `posemetry bench ingest`).
+"""Calibration-job timing against stored evidence: `python -m bench.calibration_job` (run by `posemetry bench ingest`).
 
 It lives with the workers because it times the real job, `workers.jobs.calibrate_camera`, and the service never
 imports the workers package; the CLI runs this module as a process and passes its output through.
@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from service.bench.ingest import PEOPLE_PER_FRAME
+from bench.ingest import PEOPLE_PER_FRAME
 from workers import jobs
 
 if TYPE_CHECKING:
@@ -57,7 +57,7 @@ def _insert_evidence(engine: Engine, camera_id: str, observations: int, seed: in
     from sqlalchemy import insert, update
     from sqlalchemy.orm import Session
 
-    from service.geometry.simulate import SceneConfig, draw_scene
+    from bench.simulate import SceneConfig, draw_scene
     from service.store import Camera, Frame, Observation
     from service.store.repository import grid_cell
     from service.store.repository import upsert_camera as _upsert

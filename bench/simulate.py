@@ -14,7 +14,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.stats import truncnorm
 
-from .frame import FloatArray
+from service.geometry.frame import FloatArray
 
 OUTLIER_KINDS = ("sitting", "bending", "stairs", "bad_detection")
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Final
 
-# Metric keys match service.bench.geometry.METRIC_KEYS plus "fail_pct".
+# Metric keys match bench.geometry.METRIC_KEYS plus "fail_pct".
 PaperRows = dict[str, dict[str, tuple[float, ...]]]
 
 PAPER_TRIALS: Final = 5000
