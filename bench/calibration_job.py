@@ -1,7 +1,7 @@
 """Calibration-job timing against stored evidence: `python -m bench.calibration_job` (run by `posemetry bench ingest`).
 
-It lives with the workers because it times the real job, `workers.jobs.calibrate_camera`, and the service never
-imports the workers package; the CLI runs this module as a process and passes its output through.
+It times the real job, `workers.jobs.calibrate_camera`, so it imports the workers package, which the service never
+does: `posemetry bench ingest` runs this module as a process and passes its output through.
 """
 
 from __future__ import annotations
@@ -58,9 +58,9 @@ def _insert_evidence(engine: Engine, camera_id: str, observations: int, seed: in
     from sqlalchemy.orm import Session
 
     from bench.simulate import SceneConfig, draw_scene
+    from service.cameras.repository import upsert_camera as _upsert
+    from service.geometry.evidence import grid_cells
     from service.store import Camera, Frame, Observation
-    from service.store.repository import grid_cell
-    from service.store.repository import upsert_camera as _upsert
 
     rng = np.random.default_rng(seed)
     # One camera; its people are drawn in chunks (draw_scene needs them all visible), so a scene is redrawn with
@@ -79,6 +79,7 @@ def _insert_evidence(engine: Engine, camera_id: str, observations: int, seed: in
             pick = rng.integers(0, len(scene.tops_px), n)
             tops = scene.tops_px[pick] + rng.normal(0.0, config.noise_px, (n, 2))
             bottoms = scene.bottoms_px[pick] + rng.normal(0.0, config.noise_px, (n, 2))
+            cells = grid_cells(bottoms, (width, height)).tolist()
             frame_rows, rows = [], []
             for start in range(0, n, PEOPLE_PER_FRAME):
                 frame_id = uuid.uuid4()
@@ -108,7 +109,7 @@ def _insert_evidence(engine: Engine, camera_id: str, observations: int, seed: in
                             "keypoints_f32": None,
                             "usable": True,
                             "unusable_reason": None,
-                            "cell": grid_cell(ax, ay, width, height),
+                            "cell": cells[start + index],
                             "sample_key": None,
                         }
                     )
@@ -125,11 +126,13 @@ def run_calibration(sizes: Sequence[int], *, repeats: int, seed: int, progress: 
     """For each size: a fresh SQLite database with that many observations, then `calibrate_camera` timed."""
     from sqlalchemy.orm import Session
 
-    from service.queue import EmbeddedRedis
+    from service.calibration.evidence import sample_evidence
+    from service.calibration.repository import current_calibration
+    from service.calibration.service import key_camera_evidence
+    from service.embedded_redis import EmbeddedRedis
     from service.settings import get_settings
-    from service.store import make_engine
+    from service.store import make_engine, sessions
     from service.store.migrate import upgrade
-    from service.store.repository import current_calibration, sample_evidence
 
     timings = []
     saved_env = {key: value for key, value in os.environ.items() if key.startswith("POSEMETRY_")}
@@ -156,7 +159,7 @@ def run_calibration(sizes: Sequence[int], *, repeats: int, seed: int, progress: 
                 insert_s = time.perf_counter() - started
                 # What the first solve of a store this size would do first: key the whole backlog.
                 started = time.perf_counter()
-                jobs.key_camera_evidence(settings, camera_id)
+                key_camera_evidence(settings, camera_id)
                 key_s = time.perf_counter() - started
                 job_s, sample_s, solve_s = [], [], []
                 outcome = ""
@@ -186,7 +189,7 @@ def run_calibration(sizes: Sequence[int], *, repeats: int, seed: int, progress: 
                         fx_true,
                     )
                 )
-                jobs.dispose_engines()
+                sessions.dispose_engines()
                 engine.dispose()
         finally:
             redis.stop()

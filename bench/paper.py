@@ -74,5 +74,3 @@ TABLE3: Final[PaperRows] = {
         "fail_pct": (13.78, 7.20, 5.1, 4.2, 4.0),
     },
 }
-
-PAPER_TABLES: Final[dict[str, PaperRows]] = {"table1": TABLE1, "table2": TABLE2, "table3": TABLE3}

@@ -95,7 +95,7 @@ def _children_cpu_s() -> float:
 
 def _area(file: str) -> str:
     """What a frame's file belongs to: a package (sqlalchemy, pydantic, ...), the service's module
-    (service.store.repository), or a standard-library module."""
+    (service.frames.repository), or a standard-library module."""
     parts = [part for part in file.replace("\\", "/").split("/") if part]
     if "site-packages" in parts:
         parts = parts[parts.index("site-packages") + 1 :]

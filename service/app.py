@@ -1,4 +1,4 @@
-"""The FastAPI application factory: the stateless HTTP front of posemetry.
+"""The FastAPI application factory: the stateless HTTP front of posemetry, mounting every room's routes.
 
 The app holds no state of its own beyond an engine and a dispatcher, so any number of API processes can run
 side by side. Everything it accepts goes to SQL first; the dispatcher only nudges workers.
@@ -16,32 +16,30 @@ from fastapi import Depends, FastAPI
 from sqlalchemy import Engine
 
 from service import __version__
-from service.auth.authenticator import Authenticator
-from service.auth.dependencies import AUTH_RESPONSE_DESCRIPTIONS, require_key
-from service.auth.middleware import AuthenticateBeforeBody
+from service.calibration import routes as calibration
+from service.cameras import routes as cameras
+from service.cameras.cache import CameraCache
 from service.dispatch import Dispatcher, NullDispatcher
-from service.json_body import register_body_schemas
+from service.distances import routes as distances
+from service.frames import routes as frames
+from service.frames.writer import FrameWriter
+from service.health import metrics
+from service.health import routes as health
+from service.http.json_body import register_body_schemas
+from service.http.problems import PROBLEM_MEDIA_TYPE, BodyGuard, HeaderGuard, install_handlers
+from service.http.query_params import known_query_only
+from service.keys import routes as keys
+from service.keys.authenticator import Authenticator
+from service.keys.dependencies import AUTH_RESPONSE_DESCRIPTIONS, require_key
+from service.keys.middleware import AuthenticateBeforeBody
 from service.observability.collectors import SharedStateCollector
 from service.observability.http import RequestTelemetry
 from service.observability.metrics import exposition_registry
-from service.problems import PROBLEM_MEDIA_TYPE, BodyGuard, HeaderGuard, install_handlers
-from service.query_params import known_query_only
-from service.routers import (
-    calibration,
-    cameras,
-    distances,
-    frames,
-    health,
-    keys,
-    metrics,
-    pictures,
-    violations,
-    webhooks,
-)
+from service.pictures import routes as pictures
 from service.settings import Settings, get_settings
 from service.store import make_engine, make_session_factory
-from service.store.camera_cache import CameraCache
-from service.store.frame_writer import FrameWriter
+from service.violations import routes as violations
+from service.webhooks import routes as webhooks
 
 if TYPE_CHECKING:
     from service.observability.queue_depths import QueueDepths
@@ -80,7 +78,8 @@ AUTH_RESPONSES: dict[int | str, dict[str, object]] = {
     status: {"description": text, "content": {PROBLEM_MEDIA_TYPE: {"schema": PROBLEM_SCHEMA}}}
     for status, text in AUTH_RESPONSE_DESCRIPTIONS.items()
 }
-# Routers anyone may call: liveness and readiness, for load balancers and orchestrators that hold no key.
+# Each room's routes, in the order the OpenAPI document lists them. Routers anyone may call: liveness and readiness,
+# for load balancers and orchestrators that hold no key.
 PUBLIC_ROUTERS = (health,)
 ROUTERS = (cameras, frames, pictures, calibration, distances, violations, webhooks, keys, metrics, health)
 

@@ -1,17 +1,16 @@
 """How the API hands work to the workers, behind a small protocol so the API never imports the queue.
 
 The API stores first and dispatches second: a frame is in SQL before any worker hears of it, so losing the
-queue loses no data (workers re-enqueue pending frames on start). The Redis implementation lives with the
-workers; this module holds the protocol, the error the API turns into 503, and two in-process implementations
-(one that does nothing, one that records calls and can be told to fail) for tests and queue-less runs.
+queue loses no data (workers re-enqueue pending frames on start). The Redis implementation is service.queue
+(the API gets one from `posemetry api`/`serve`, never by importing it); this module holds the protocol, the error
+the API turns into 503, and the dispatcher that does nothing, for queue-less runs. (The tests' recording one is
+tests.support.dispatch.)
 """
 
 from __future__ import annotations
 
-import threading
 import uuid
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Protocol, runtime_checkable
 
@@ -64,46 +63,4 @@ class NullDispatcher:
         return 0
 
     def ready(self) -> bool:
-        return True
-
-
-@dataclass
-class RecordingDispatcher:
-    """Records every call in order; set `fail` to make calls raise DispatchUnavailableError (queue down)."""
-
-    fail: bool = False
-    frames: list[tuple[str, uuid.UUID]] = field(default_factory=list)
-    images: list[tuple[str, uuid.UUID]] = field(default_factory=list)
-    calibrations: list[tuple[str, bool]] = field(default_factory=list)
-    deliveries: list[tuple[uuid.UUID, int, datetime | None]] = field(default_factory=list)
-    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
-
-    def _check(self) -> None:
-        if self.fail:
-            raise DispatchUnavailableError("queue unreachable (RecordingDispatcher.fail is set)")
-
-    def frames_stored(self, frames: Sequence[tuple[str, uuid.UUID]]) -> None:
-        self._check()
-        with self._lock:
-            self.frames.extend(frames)
-
-    def image_stored(self, camera_id: str, frame_id: uuid.UUID) -> None:
-        self._check()
-        with self._lock:
-            self.images.append((camera_id, frame_id))
-
-    def calibration_requested(self, camera_id: str, forced: bool) -> None:
-        self._check()
-        with self._lock:
-            self.calibrations.append((camera_id, forced))
-
-    def deliveries_due(self, due: Iterable[tuple[uuid.UUID, int, datetime | None]]) -> int:
-        self._check()
-        items = list(due)
-        with self._lock:
-            self.deliveries.extend(items)
-        return len(items)
-
-    def ready(self) -> bool:
-        self._check()
         return True

@@ -47,7 +47,7 @@ from rq.queue import EnqueueData
 from rq.registry import ScheduledJobRegistry
 
 from service.dispatch import DispatchUnavailableError
-from service.embedded_redis import EmbeddedRedis, embedded_socket_path  # noqa: F401 - EmbeddedRedis lived here
+from service.embedded_redis import embedded_socket_path
 from service.observability.request_id import JOB_META_KEY, current_request_id
 
 if TYPE_CHECKING:
@@ -69,9 +69,6 @@ CALIBRATE_CAMERA_JOB = "workers.jobs.calibrate_camera"
 DETECT_PEOPLE_JOB = "workers.jobs.detect_people"
 DELIVER_WEBHOOK_JOB = "workers.webhooks.deliver_webhook"
 
-# A measuring job stops taking new chunks after FRAMES_JOB_BUDGET_S (and queues its own re-run), so one busy
-# camera cannot hold a worker while other cameras wait.
-FRAMES_JOB_BUDGET_S = 5
 FRAMES_JOB_TIMEOUT_S = 120
 CALIBRATION_JOB_TIMEOUT_S = 600
 POSE_JOB_TIMEOUT_S = 300

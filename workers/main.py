@@ -31,7 +31,10 @@ import redis
 from rq import Queue
 from sqlalchemy.exc import SQLAlchemyError
 
+from service.calibration.service import calibration_due
+from service.cameras.repository import list_cameras
 from service.dispatch import DispatchUnavailableError
+from service.frames.repository import cameras_with_pending_frames, frames_detecting
 from service.observability.logs import LOG_FORMATS, configure_logging
 from service.observability.multiprocess import multiprocess_dir, use_directory
 from service.queue import (
@@ -46,9 +49,9 @@ from service.queue import (
 )
 from service.runtime import quiet_garbage_collector
 from service.settings import Settings, get_settings
+from service.store import sessions
 from service.store.models import utc_now
-from service.store.repository import calibration_due, cameras_with_pending_frames, frames_detecting, list_cameras
-from service.store.webhooks import pending_deliveries
+from service.webhooks.repository import pending_deliveries
 from workers import jobs
 from workers.instrumented import InstrumentedSimpleWorker, InstrumentedWorker
 from workers.liveness import ProvesLiveness, forget_dead_executions
@@ -88,7 +91,7 @@ class Requeued:
 def requeue_deliveries(settings: Settings, dispatcher: RedisDispatcher, *, overdue_only: bool = False) -> int:
     """Queue the next attempt of every pending webhook delivery; with `overdue_only`, only of those due more
     than SWEEP_GRACE_S ago (the periodic sweep). Returns how many jobs were queued."""
-    factory = jobs.read_session_factory(settings)
+    factory = sessions.read_session_factory(settings)
     due_before = utc_now() - timedelta(seconds=SWEEP_GRACE_S) if overdue_only else None
     queued = 0
     after = None
@@ -103,7 +106,7 @@ def requeue_deliveries(settings: Settings, dispatcher: RedisDispatcher, *, overd
 
 def requeue_pending(settings: Settings, dispatcher: RedisDispatcher, *, periodic: bool = False) -> Requeued:
     """The recovery pass (see the module docstring); `periodic` leaves alone deliveries that are only just due."""
-    factory = jobs.read_session_factory(settings)
+    factory = sessions.read_session_factory(settings)
     with factory() as session:
         frames = dispatcher.measure_requested(cameras_with_pending_frames(session, calibrated_only=True))
         images = dispatcher.images_pending(frames_detecting(session))
@@ -231,7 +234,7 @@ def run_worker(
         request_recovery(connection)
         requeued = Requeued(frames=0, images=0, calibrations=0)
     # Forked children (jobs, RQ's scheduler) must open their own database connections, never inherit the parent's.
-    jobs.dispose_engines()
+    sessions.dispose_engines()
     worker_class = RecoveringWorker if fork else RecoveringSimpleWorker
     worker = worker_class(
         [MaintainedQueue(queue, connection=connection) for queue in queues],

@@ -1,120 +1,16 @@
-"""The webhook delivery job: one attempt of one delivery, and the next one scheduled when it must be retried.
-
-An attempt is claimed in SQL (so a job queued twice sends once), signed afresh (its `webhook-timestamp` is the
-time of sending; `webhook-id` is the event's, the same for every retry and redelivery), sent with no redirects
-and through the SSRF policy, then recorded; a retry is queued at its time after that commit. If Redis is
-unreachable for that, the delivery stays pending in SQL and the sweep (or a worker starting) queues it again.
-A delivery or subscription deleted meanwhile ends the job quietly.
-"""
+"""The webhook delivery job: one attempt of one delivery (service.webhooks.service), queued by dotted path."""
 
 from __future__ import annotations
 
-import logging
-import time
 import uuid
-from collections.abc import Iterator
-from contextlib import contextmanager
-from datetime import timedelta
 
-from rq import get_current_job
-from sqlalchemy.orm import Session
-
-from service.dispatch import DispatchUnavailableError
-from service.observability.metrics import WebhookOutcome, record_webhook_delivery
-from service.queue import RedisDispatcher
-from service.settings import Settings, get_settings
-from service.store.models import utc_now
-from service.store.webhooks import AttemptRecord, Claim, claim_attempt, prune_webhook_log, record_attempt
-from service.webhooks.delivery import decide_attempt, send, utc_timestamp_s
-from service.webhooks.signing import signed_headers
-from workers.jobs import session_factory
-
-log = logging.getLogger(__name__)
-
-# How long past the request timeout an attempt's lease lasts: a worker that died mid-request frees its
-# delivery for the next attempt this long after the request would have timed out.
-LEASE_MARGIN_S = 60.0
-# Each worker process prunes the delivery log at most this often (one DELETE, after a delivery).
-PRUNE_INTERVAL_S = 3600.0
-# The delivery-metric label of each decision; an attempt the SSRF policy refused counts as `blocked`.
-_METRIC_OUTCOMES: dict[str, WebhookOutcome] = {"delivered": "delivered", "retry": "retrying", "failed": "failed"}
-_last_prune_s = -PRUNE_INTERVAL_S
-
-
-@contextmanager
-def _transaction(settings: Settings) -> Iterator[Session]:
-    with session_factory(settings)() as session, session.begin():
-        yield session
-
-
-def _dispatcher(settings: Settings) -> RedisDispatcher:
-    job = get_current_job()
-    return RedisDispatcher(job.connection) if job is not None else RedisDispatcher.from_settings(settings)
+from service.settings import get_settings
+from service.webhooks.service import deliver
+from workers.context import current_dispatcher
 
 
 def deliver_webhook(delivery_id: str, attempt: int) -> str:
     """Make attempt number `attempt` of a delivery; returns delivered, retry, failed, or why nothing was sent
     (gone, skipped, paused)."""
     settings = get_settings()
-    delivery_uuid = uuid.UUID(delivery_id)
-    with _transaction(settings) as session:
-        claim = claim_attempt(session, delivery_uuid, attempt, lease_s=3 * settings.webhook_timeout_s + LEASE_MARGIN_S)
-    if isinstance(claim, str):
-        return claim
-    record = _attempt(claim, settings)
-    with _transaction(settings) as session:
-        recorded = record_attempt(session, delivery_uuid, attempt, record)
-    if not recorded:
-        return "gone"  # the subscription was deleted while the request was out
-    log.info("webhook delivery %s attempt %d: %s (%s)", delivery_id, attempt, record.outcome, record.reason or "ok")
-    if record.outcome == "retry":
-        try:
-            _dispatcher(settings).deliveries_due([(delivery_uuid, attempt + 1, record.next_attempt_at)])
-        except DispatchUnavailableError as exc:
-            log.warning("could not queue retry %d of delivery %s (the sweep will): %s", attempt + 1, delivery_id, exc)
-    _prune_now_and_then(settings)
-    return record.outcome
-
-
-def _attempt(claim: Claim, settings: Settings) -> AttemptRecord:
-    """Sign, send, and decide: what the attempt's row and its delivery will say."""
-    headers = signed_headers(claim.secrets, claim.message_id, utc_timestamp_s(), claim.body)
-    result = send(
-        claim.url,
-        claim.body,
-        headers,
-        timeout_s=settings.webhook_timeout_s,
-        allowed=settings.webhook_allowed_networks,
-    )
-    decision = decide_attempt(
-        result,
-        claim.attempt,
-        max_attempts=settings.webhook_max_attempts,
-        base_s=settings.webhook_retry_base_s,
-        cap_s=settings.webhook_retry_cap_s,
-    )
-    record_webhook_delivery(_METRIC_OUTCOMES[decision.outcome] if not result.refused else "blocked")
-    return AttemptRecord(
-        outcome=decision.outcome,
-        duration_s=result.duration_s,
-        status_code=result.status_code,
-        error=result.error,
-        response_body=result.response_body,
-        response_truncated=result.response_truncated,
-        peer=result.peer,
-        next_attempt_at=None if decision.delay_s is None else utc_now() + timedelta(seconds=decision.delay_s),
-        reason=decision.reason,
-        disable_subscription=decision.disable_subscription,
-    )
-
-
-def _prune_now_and_then(settings: Settings) -> None:
-    global _last_prune_s
-    if time.monotonic() - _last_prune_s < PRUNE_INTERVAL_S:
-        return
-    _last_prune_s = time.monotonic()
-    before = utc_now() - timedelta(days=settings.webhook_log_retention_days)
-    with _transaction(settings) as session:
-        pruned = prune_webhook_log(session, before=before)
-    if pruned:
-        log.info("pruned %d webhook events older than %s from the delivery log", pruned, before.isoformat())
+    return deliver(settings, current_dispatcher(settings), uuid.UUID(delivery_id), attempt)

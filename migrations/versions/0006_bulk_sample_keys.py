@@ -42,7 +42,8 @@ def upgrade() -> None:
 
 
 def downgrade() -> None:
-    # The service's key (repository.sample_key), frozen here: a migration must not change when the service does.
+    # The service's key (service.calibration.evidence.sample_key), frozen here: a migration must not change when
+    # the service does.
     op.execute(
         "UPDATE observations SET sample_key = ((id % 2147483648) * 2654435761) % 2147483648 WHERE sample_key IS NULL"
     )

@@ -24,9 +24,10 @@ from rich.progress import (
 )
 from rich.table import Table
 
+from .analysis import Analysis, Stage
 from .errors import AnalyzeError
 from .options import AnalyzeOptions
-from .run import Analysis, Stage, run_analysis
+from .run import run_analysis
 
 # Piped output is not cut at 80 columns (the summary's paths and figures would wrap mid-cell).
 _PIPED_WIDTH = 160

@@ -8,9 +8,9 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Literal, get_args
 
+from service.domain import METRES_PER_FOOT
 from service.geometry import DEFAULT_HEIGHT_M
 from service.pose.model_files import POSE_MODELS
-from service.schemas import METRES_PER_FOOT
 
 from .errors import AnalyzeError
 

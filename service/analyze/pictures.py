@@ -14,15 +14,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from service.render.grid import SIX_FEET_M
+from service.frames.schemas import FrameResult
+from service.render.frame import FramePictures
 from service.render.ground import GroundFrame
-from service.render.overlay import marks_from_result, render_overlay
 from service.render.png import encode_png
 from service.render.style import Style, label
-from service.render.topdown import TopDownView, fit_view, render_topdown
-from service.schemas import FrameResult
+from service.render.topdown import TopDownView, fit_view
 
-from .run import Analysis, AnalyzedFrame, Observer
+from .analysis import Analysis, AnalyzedFrame, Observer
 from .sources import IMAGE_FOLDER_VIDEO_FPS
 from .writers import OVERLAY_DIR, OVERLAY_VIDEO, TOPDOWN_DIR, TOPDOWN_VIDEO
 
@@ -107,7 +106,6 @@ class PictureWriter:
         self.out_dir = out_dir
         options = analysis.options
         self.images = enabled and options.write_images
-        self.cell_m = SIX_FEET_M if options.unit == "ft" else 1.0
         self.view = topdown_view(analysis) if enabled else None
         if self.images:
             (out_dir / OVERLAY_DIR).mkdir(exist_ok=True)
@@ -131,22 +129,9 @@ class PictureWriter:
     def draw(self, image: np.ndarray, frame: AnalyzedFrame, result: FrameResult) -> None:
         if self.view is None:
             return
-        calibration = self.analysis.calibration
         options = self.analysis.options
-        threshold_m = options.threshold_m
-        marks = marks_from_result(result, frame.people, calibration)
-        overlay = render_overlay(
-            image, calibration, marks, result.pairs, threshold_m, grid_cell_m=self.cell_m, unit=options.unit
-        )
-        topdown = render_topdown(
-            marks,
-            result.pairs,
-            threshold_m,
-            calibration=calibration,
-            view=self.view,
-            grid_m=self.cell_m,
-            unit=options.unit,
-        )
+        pictures = FramePictures.of(result, frame.people, self.analysis.calibration, options.unit)
+        overlay, topdown = pictures.overlay(image), pictures.topdown(view=self.view)
         for picture in (overlay, topdown):
             height, width = picture.shape[:2]
             label(picture, _caption(frame, result), (0, 0), Style.for_size(width, height), align="topleft")

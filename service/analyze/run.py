@@ -14,120 +14,29 @@ and pictures are written as it is measured and then dropped, so a long video cos
 from __future__ import annotations
 
 import time
-from collections import Counter
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
-from typing import Literal, Protocol
 
 import numpy as np
 
-from service.geometry import Calibration
+from service.domain import PersonIn
+from service.frames.keypoints import people_from_detections
+from service.frames.measure import measure_people
 from service.geometry.evidence import EvidenceSolve, solve_evidence
-from service.keypoints import people_from_detections
 from service.pose.types import PoseEstimator
-from service.results import measure_people
-from service.schemas import FrameResult
-from service.store.repository import PersonIn
 
+from .analysis import Analysis, AnalyzedFrame, Evidence, Observer
 from .errors import AnalyzeError
 from .options import AnalyzeOptions
+from .pictures import PictureWriter
 from .records import CalibrationRole
 from .sources import FrameSource, SkippedFrame, SourceFrame, open_source
+from .writers import TableWriter, frame_record, prepare_output, write_calibration
 
-Stage = Literal["pose", "calibration", "results"]
 # Fewer people than this give a rough camera (the service waits for as many before its first solve,
 # POSEMETRY_CALIBRATION_MIN_PEOPLE); analyze still reports it, with a warning, since the user asked for this input.
 FEW_PEOPLE = 30
-
-
-class Observer(Protocol):
-    """What a run reports while it works (the command shows it as progress bars)."""
-
-    def begin(self, stage: Stage, total: int | None) -> None: ...
-
-    def advance(self, people: int = 0) -> None: ...
-
-    def note(self, message: str) -> None: ...
-
-
-@dataclass(frozen=True)
-class AnalyzedFrame:
-    """A frame's people as the pose model found them."""
-
-    index: int
-    time_s: float | None
-    file: str | None
-    people: list[PersonIn]
-
-
-@dataclass(frozen=True)
-class Evidence:
-    """The usable people of all frames, pooled: shoulder and ankle centres, and whose they are."""
-
-    tops_px: np.ndarray
-    bottoms_px: np.ndarray
-    owners: list[tuple[int, int]]
-    """(position in the frame list, person index) of each row."""
-
-    @classmethod
-    def of(cls, frames: Sequence[AnalyzedFrame]) -> Evidence:
-        tops, bottoms, owners = [], [], []
-        for position, frame in enumerate(frames):
-            for index, person in enumerate(frame.people):
-                if person.unusable_reason is None and person.shoulder_px is not None and person.ankle_px is not None:
-                    tops.append(person.shoulder_px)
-                    bottoms.append(person.ankle_px)
-                    owners.append((position, index))
-        return cls(np.array(tops, dtype=float).reshape(-1, 2), np.array(bottoms, dtype=float).reshape(-1, 2), owners)
-
-    def __len__(self) -> int:
-        return len(self.owners)
-
-
-@dataclass
-class Analysis:
-    """Everything a run found: what the writers and the summary need."""
-
-    source: FrameSource
-    options: AnalyzeOptions
-    pose_model: str
-    frames: list[AnalyzedFrame]
-    skipped: list[SkippedFrame]
-    evidence: Evidence
-    solve: EvidenceSolve
-    roles: dict[tuple[int, int], CalibrationRole] = field(default_factory=dict)
-    """(frame position, person index) -> the person's part in the calibration (usable people only)."""
-    times_s: dict[str, float] = field(default_factory=dict)
-    """Seconds per stage: pose, calibration, results (measuring and writing tables and pictures)."""
-    warnings: list[str] = field(default_factory=list)
-    violations: int = 0
-    """Pairs under the threshold, over all frames (counted as frames are measured)."""
-    frames_with_violations: int = 0
-    people_placed: int = 0
-
-    @property
-    def calibration(self) -> Calibration | None:
-        return self.solve.calibration
-
-    @property
-    def people_seen(self) -> int:
-        return sum(len(frame.people) for frame in self.frames)
-
-    def unusable_reasons(self) -> dict[str, int]:
-        counts = Counter(p.unusable_reason for f in self.frames for p in f.people if p.unusable_reason is not None)
-        return dict(counts.most_common())
-
-    @property
-    def wants_video(self) -> bool:
-        """Overlay videos: asked for, or by default for a video input."""
-        wanted = self.options.write_video
-        return self.source.kind == "video" if wanted is None else wanted
-
-    def tally(self, result: FrameResult) -> None:
-        self.violations += len(result.violations)
-        self.frames_with_violations += bool(result.violations)
-        self.people_placed += sum(person.ground_m is not None for person in result.people)
 
 
 def detect(source: FrameSource, estimator: PoseEstimator, observer: Observer) -> tuple[list[AnalyzedFrame], list]:
@@ -202,9 +111,6 @@ def report_frames(analysis: Analysis, out_dir: Path, observer: Observer) -> None
 
     Streaming: a frame's pairs and pictures are dropped once written, so memory does not grow with the video.
     """
-    from .pictures import PictureWriter
-    from .writers import TableWriter, frame_record
-
     calibration = analysis.calibration
     threshold_m = analysis.options.threshold_m
     draw = calibration is not None and (analysis.options.write_images or analysis.wants_video)
@@ -230,8 +136,6 @@ def run_analysis(path: Path, out_dir: Path, options: AnalyzeOptions, observer: O
     When the calibration fails, calibration.json (with the reason and the evidence) and the people found are
     still written, so the pose work of a long video is not lost; the pictures need a camera and are not drawn.
     """
-    from .writers import prepare_output, write_calibration
-
     options = options.checked()
     source = open_source(path, stride=options.stride, max_frames=options.max_frames)
     prepare_output(out_dir)

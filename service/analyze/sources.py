@@ -22,11 +22,11 @@ from typing import Literal
 import cv2
 import numpy as np
 
-from service.images import ImageError, decode
+from service.frames.images import ImageError, decode
 
 from .errors import AnalyzeError
 
-# Decoded through service.images (header check, pixel budget, truncation) ...
+# Decoded through service.frames.images (header check, pixel budget, truncation) ...
 CHECKED_SUFFIXES = frozenset({".jpg", ".jpeg", ".png"})
 # ... or by OpenCV alone.
 OTHER_IMAGE_SUFFIXES = frozenset({".bmp", ".tif", ".tiff", ".webp"})

@@ -16,9 +16,11 @@ from pathlib import Path
 import numpy as np
 
 from service import __version__
+from service.domain import METRES_PER_FOOT
+from service.frames.schemas import FrameResult, PairDistance
 from service.geometry.uncertainty import CANONICAL_PARAMETERS
-from service.schemas import METRES_PER_FOOT, FrameResult, PairDistance
 
+from .analysis import Analysis, AnalyzedFrame
 from .errors import AnalyzeError
 from .records import (
     CalibrationRecord,
@@ -29,7 +31,6 @@ from .records import (
     PersonRecord,
     SourceRecord,
 )
-from .run import Analysis, AnalyzedFrame
 
 CALIBRATION_FILE = "calibration.json"
 FRAMES_FILE = "frames.jsonl"

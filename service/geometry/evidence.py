@@ -60,10 +60,24 @@ def collapse_repeats(tops_px: np.ndarray, bottoms_px: np.ndarray, radius_px: flo
     return np.flatnonzero(keep)
 
 
-# The sampling grid over the image, by ankle centre: the store samples on the same 8 x 8 cells
-# (service.store.models.GRID_COLS/ROWS), so a solve in the workers and one in `posemetry analyze` see evidence
-# spread the same way.
+# The sampling grid over the image (columns, rows), by ankle centre. The store keys every stored person by these
+# cells and samples on them too (service.calibration.evidence), so a solve in the workers and one in
+# `posemetry analyze` see evidence spread the same way.
 SAMPLE_GRID = (8, 8)
+
+
+def grid_cells(
+    points_px: np.ndarray, image_size_px: tuple[float, float], grid: tuple[int, int] = SAMPLE_GRID
+) -> np.ndarray:
+    """The grid cell (row * columns + column) of each point; points outside the image go to the nearest edge cell,
+    and a coordinate that is not finite counts as 0."""
+    points = np.asarray(points_px, dtype=float).reshape(-1, 2)
+    cols, rows = grid
+    width, height = float(image_size_px[0]), float(image_size_px[1])
+    finite = np.all(np.isfinite(points), axis=1)
+    col = np.clip(np.floor(np.where(finite, points[:, 0], 0.0) / width * cols), 0, cols - 1).astype(int)
+    row = np.clip(np.floor(np.where(finite, points[:, 1], 0.0) / height * rows), 0, rows - 1).astype(int)
+    return row * cols + col
 
 
 def balanced_sample(
@@ -88,11 +102,7 @@ def balanced_sample(
     if n <= cap:
         return np.arange(n)
     cols, rows = grid
-    width, height = float(image_size_px[0]), float(image_size_px[1])
-    finite = np.all(np.isfinite(points), axis=1)
-    col = np.clip(np.floor(np.where(finite, points[:, 0], 0.0) / width * cols), 0, cols - 1).astype(int)
-    row = np.clip(np.floor(np.where(finite, points[:, 1], 0.0) / height * rows), 0, rows - 1).astype(int)
-    cell = row * cols + col
+    cell = grid_cells(points, image_size_px, grid)
     rng = np.random.default_rng(seed)
     # Rank of each observation within its cell, in a random order: taking everything of rank < level from every
     # cell is the water-filling; the last level is filled at random across cells.

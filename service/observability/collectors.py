@@ -18,7 +18,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from service import __version__
 from service.dispatch import DispatchUnavailableError
-from service.store.overview import camera_overview
+from service.observability.overview import camera_overview
 
 if TYPE_CHECKING:
     from service.observability.queue_depths import QueueDepths

@@ -27,6 +27,10 @@ LogFormat = Literal["json", "text"]
 LOG_FORMATS: tuple[LogFormat, ...] = ("json", "text")
 # Fields a line may carry from its context; text lines append them as key=value, JSON lines as keys.
 CONTEXT_FIELDS = ("request_id", "job_id", "queue", "camera_id", "frame_id")
+# The loggers of the jobs' work, wherever it lives (service.frames, service.calibration, service.webhooks): log
+# collectors select the lines of measuring, pose, solving and deliveries by these names (README, Observability).
+JOBS_LOGGER = "workers.jobs"
+WEBHOOK_JOBS_LOGGER = "workers.webhooks"
 
 _context: ContextVar[Mapping[str, Any] | None] = ContextVar("posemetry_log_context", default=None)
 

@@ -101,7 +101,6 @@ FRAMES_INGESTED = Counter(
 
 # --------------------------------------------------------------------------------------------------- jobs
 
-JOB_OUTCOMES = ("succeeded", "failed", "retried", "stopped")
 JOB_BUCKETS_S = (0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0, 60.0, 120.0, 300.0, 600.0)
 JOB_DURATION = Histogram(
     "posemetry_job_duration_seconds",

@@ -11,11 +11,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from service.domain import METRES_PER_FOOT
 from service.geometry.frame import FloatArray
 
 from .ground import GroundFrame, clip_line_to_polygon
 
-METRES_PER_FOOT = 0.3048
 SIX_FEET_M = 6 * METRES_PER_FOOT
 # Default reach of the grid, in cells: beyond about 40 cells a 1 m grid is a grey smear near the horizon.
 DEFAULT_RANGE_CELLS = 40

@@ -1,6 +1,6 @@
 """The ground-plane frame that every picture is drawn in, and what part of the ground the camera sees.
 
-Ground coordinates (u, v) in metres are exactly the `ground_m` that `service.results` stores for each person:
+Ground coordinates (u, v) in metres are exactly the `ground_m` that `service.frames.measure` stores for each person:
 origin at the foot of the camera's perpendicular (-rho N), `v` ("forward") along the camera's viewing direction
 projected onto the ground, `u` ("right") = forward x N. (u, v, up) is then right-handed, so a map drawn with u to
 the right and v upwards shows the scene as seen from above with the camera at the bottom looking up. Reusing
@@ -28,11 +28,11 @@ MIN_DEPTH_M = 1e-3
 
 
 def ground_axes(normal: ArrayLike) -> tuple[FloatArray, FloatArray]:
-    """(right, forward) unit vectors on the ground, as `service.results` defines them.
+    """(right, forward) unit vectors on the ground, as `service.frames.measure` defines them.
 
     forward = the optical axis projected onto the ground; right = forward x N. A camera looking straight down
     has no projected optical axis: then "forward" is the image's up direction (-y) projected instead, so the
-    frame is still defined (results.py would produce NaN there; such a camera does not calibrate anyway).
+    frame is still defined (measuring would produce NaN there; such a camera does not calibrate anyway).
     """
     n = np.asarray(normal, dtype=np.float64)
     n = n / np.linalg.norm(n)

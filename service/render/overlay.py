@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Protocol
 import cv2
 import numpy as np
 
+from service.domain import PersonIn, StoredCentres, centres
 from service.geometry.calibration import Calibration
 
 from .grid import grid_segments
@@ -23,11 +24,9 @@ from .ground import GroundFrame
 from .style import CYAN, GREEN, LIGHT_RED, PINK, RED, SHIFT, Style, fixed, format_distance, label, line
 
 if TYPE_CHECKING:
-    from service.schemas import FrameResult
-    from service.store.models import Observation
-    from service.store.repository import PersonIn
+    from service.frames.schemas import FrameResult
 
-# COCO-17 keypoints below this score are not used to size a box (same cut-off as service.keypoints).
+# COCO-17 keypoints below this score are not used to size a box (same cut-off as service.frames.keypoints).
 MIN_KEYPOINT_SCORE = 0.3
 # Box proportions from the shoulder-to-ankle segment L (shoulder ~0.82, ankle ~0.04 of stature):
 # the head top is ~0.23 L above the shoulders, the feet ~0.05 L below the ankles, a person ~0.45 L wide.
@@ -40,7 +39,7 @@ Box = tuple[float, float, float, float]
 
 
 class PairLike(Protocol):
-    """A measured pair (service.schemas.PairDistance has this shape)."""
+    """A measured pair (service.frames.schemas.PairDistance has this shape)."""
 
     i: int
     j: int
@@ -62,15 +61,6 @@ class PersonMark:
     foot_px: Point | None = None
     box_px: Box | None = None
     shoulder_px: Point | None = None
-
-
-def _person_points(person: Observation | PersonIn) -> tuple[Point | None, Point | None]:
-    """(shoulder, ankle) pixels of a stored observation or of a not-yet-stored person."""
-    if hasattr(person, "shoulder_px"):
-        return person.shoulder_px, person.ankle_px  # type: ignore[union-attr]
-    shoulder = None if person.shoulder_x_px is None else (person.shoulder_x_px, person.shoulder_y_px)
-    ankle = None if person.ankle_x_px is None else (person.ankle_x_px, person.ankle_y_px)
-    return shoulder, ankle  # type: ignore[return-value]
 
 
 def box_from_keypoints(keypoints: Sequence[Sequence[float]], min_score: float = MIN_KEYPOINT_SCORE) -> Box | None:
@@ -101,7 +91,7 @@ def box_from_segment(shoulder: Point, foot: Point) -> Box | None:
 
 def marks_from_result(
     result: FrameResult,
-    people: Sequence[Observation | PersonIn],
+    people: Sequence[PersonIn | StoredCentres],
     calibration: Calibration | None = None,
 ) -> list[PersonMark]:
     """PersonMarks for a stored frame: its `FrameResult` plus its stored people in person-index order.
@@ -114,7 +104,7 @@ def marks_from_result(
     positions = {p.index: p for p in result.people}
     marks = []
     for index, person in enumerate(people):
-        shoulder, ankle = _person_points(person)
+        shoulder, ankle = centres(person)
         position = positions.get(index)
         foot = ankle
         if foot is None and frame is not None and position is not None and position.point_m is not None:
@@ -131,7 +121,7 @@ def marks_from_result(
 
 
 def violators(pairs: Sequence[PairLike], threshold_m: float) -> set[int]:
-    """Indices of people in at least one pair strictly closer than the threshold (as service.results counts)."""
+    """Indices of people in at least one pair strictly closer than the threshold (as service.frames.measure counts)."""
     out: set[int] = set()
     for p in pairs:
         if p.distance_m is not None and math.isfinite(p.distance_m) and p.distance_m < threshold_m:

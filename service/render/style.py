@@ -12,6 +12,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from service.domain import METRES_PER_FOOT
+
 # BGR colours.
 GREEN = (60, 200, 60)
 RED = (40, 40, 235)
@@ -108,5 +110,5 @@ def text_height(style: Style) -> int:
 def format_distance(distance_m: float, unit: str = "m") -> str:
     """'1.42 m' or '4.7 ft': the label on a link or a pair."""
     if unit == "ft":
-        return f"{distance_m / 0.3048:.1f} ft"
+        return f"{distance_m / METRES_PER_FOOT:.1f} ft"
     return f"{distance_m:.2f} m"

@@ -1,7 +1,8 @@
-"""The SQL store: schema (models), engines and sessions (db), operations (repository), migrations (migrate).
+"""The SQL store every room shares: the schema (models, webhook_models), engines and sessions (db; sessions for
+jobs and commands), and migrations (migrate; the scripts are in migrations/).
 
-Import the repository functions from `service.store.repository`; this package re-exports the pieces most
-callers need to open a database.
+Each room keeps its own operations in its `repository` module (service.cameras.repository, ...). This package
+re-exports the pieces most callers need to open a database.
 """
 
 from .db import make_engine, make_session_factory, normalise_url

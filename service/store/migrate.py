@@ -12,13 +12,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from alembic import command
-from alembic.autogenerate import compare_metadata
 from alembic.config import Config
 from alembic.migration import MigrationContext
-from alembic.script import ScriptDirectory
 from sqlalchemy import Connection
-
-from .models import Base
 
 # Config.attributes keys that migrations/env.py reads.
 URL_ATTRIBUTE = "database_url"
@@ -64,15 +60,5 @@ def upgrade(
     command.upgrade(alembic_config(database_url, connection, script_location=script_location), revision)
 
 
-def head_revision() -> str | None:
-    return ScriptDirectory.from_config(alembic_config()).get_current_head()
-
-
 def current_revision(connection: Connection) -> str | None:
     return MigrationContext.configure(connection).get_current_revision()
-
-
-def schema_differences(connection: Connection) -> list[object]:
-    """What autogenerate would change to make the database match the models: empty when they agree."""
-    context = MigrationContext.configure(connection, opts={"compare_type": True, "compare_server_default": False})
-    return list(compare_metadata(context, Base.metadata))

@@ -10,10 +10,10 @@ Design choices that the rest of the service relies on:
   UTC text, which sorts and compares correctly because every value has the same format.
 - Observations carry a coarse grid `cell` of the ankle position and a pseudo-random `sample_key`; the index
   (camera_id, usable, cell, sample_key) lets a calibration read a capped, spatially balanced sample with a few
-  index range scans instead of reading every stored person (see repository.sample_evidence). People are stored
-  unkeyed (sample_key NULL), and the calibration job keys a camera's new people in bulk before it samples
-  (repository.key_new_evidence): that index is random in (cell, sample_key), so filling it one person per insert
-  dirtied one page per person and was two thirds of the bytes written on the ingest path.
+  index range scans instead of reading every stored person (service.calibration.evidence). People are stored
+  unkeyed (sample_key NULL), and the calibration job keys a camera's new people in bulk before it samples: that
+  index is random in (cell, sample_key), so filling it one person per insert dirtied one page per person and was
+  two thirds of the bytes written on the ingest path.
 - Raw keypoints are stored as packed little-endian float32 (x, y, score) x 17, not JSON: encoding JSON floats
   was a quarter of the cost of storing a frame, and the points are only ever read back whole (`Observation.keypoints`
   unpacks them).
@@ -21,12 +21,13 @@ Design choices that the rest of the service relies on:
   to keeping images (`cameras.keep_images`); the people found are observations like any posted keypoints.
 - Violation events carry `epoch_s`, whole seconds since the Unix epoch, so per-minute and per-hour counts are
   integer arithmetic that SQLite and PostgreSQL evaluate identically.
-- API keys store only a digest of their token (service.auth.tokens); a revoked key keeps its row, so listings
+- API keys store only a digest of their token (service.keys.tokens); a revoked key keeps its row, so listings
   and audits still show who had access, and when.
 """
 
 from __future__ import annotations
 
+import math
 import struct
 import uuid
 from datetime import UTC, datetime
@@ -78,11 +79,14 @@ def clip_reason(message: str, limit: int = REASON_MAX_LENGTH) -> str:
     return message if len(message) <= limit else message[: limit - 3] + "..."
 
 
-# The sampling grid over the image: cell = row * GRID_COLS + col of the ankle centre. Part of the stored data's
-# meaning (observations keep their cell), so changing it needs a migration that recomputes `cell`.
-GRID_COLS = 8
-GRID_ROWS = 8
-GRID_CELLS = GRID_COLS * GRID_ROWS
+def finite_or_none(value: float | None) -> float | None:
+    """NaN/inf become NULL: SQLite silently stores NaN as NULL anyway, and PostgreSQL JSON rejects it."""
+    if value is None:
+        return None
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
 # sample_key is uniform in [0, SAMPLE_KEY_SPACE): 31 bits fit a signed INTEGER on every backend.
 SAMPLE_KEY_SPACE = 2**31
 
@@ -243,7 +247,7 @@ class Observation(Base):
     usable: Mapped[bool] = mapped_column(Boolean)
     unusable_reason: Mapped[str | None] = mapped_column(String(REASON_MAX_LENGTH))
     cell: Mapped[int | None] = mapped_column(Integer)
-    # None until the calibration job keys the person (repository.key_new_evidence).
+    # None until the calibration job keys the person (service.calibration.evidence.key_new_evidence).
     sample_key: Mapped[int | None] = mapped_column(Integer)
 
     __table_args__ = (
@@ -269,7 +273,10 @@ class Observation(Base):
             name="usable_is_complete",
         ),
         CheckConstraint("usable OR unusable_reason IS NOT NULL", name="unusable_has_reason"),
-        CheckConstraint(f"cell IS NULL OR (cell >= 0 AND cell < {GRID_CELLS})", name="cell_on_grid"),
+        # The cell of the ankle centre on service.geometry.evidence.SAMPLE_GRID (8 x 8), the grid both samplers use.
+        # Its count is written out, not imported: importing the geometry loads scipy, which `posemetry db upgrade`
+        # should not pay for (tests/calibration/test_evidence.py checks they agree). A new grid needs a migration.
+        CheckConstraint("cell IS NULL OR (cell >= 0 AND cell < 64)", name="cell_on_grid"),
         CheckConstraint(f"sample_key >= 0 AND sample_key < {SAMPLE_KEY_SPACE}", name="sample_key_range"),
     )
 
@@ -420,7 +427,7 @@ class ApiKey(Base):
     # Who issued it: another key's id, `POSEMETRY_ADMIN_KEY`, `posemetry keys` or `posemetry serve`.
     created_by: Mapped[str] = mapped_column(String(API_KEY_CREATED_BY_MAX_LENGTH))
     created_at: Mapped[datetime] = mapped_column(default=utc_now)
-    # Written at most about once a minute per key and API process (service.auth), not on every request.
+    # Written at most about once a minute per key and API process (service.keys.authenticator), not on every request.
     last_used_at: Mapped[datetime | None]
     expires_at: Mapped[datetime | None]
     revoked_at: Mapped[datetime | None]

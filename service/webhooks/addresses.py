@@ -131,11 +131,6 @@ def check_url(url: str, allowed: Sequence[IPNetwork] = (), resolver: Resolver = 
     return addresses
 
 
-def parse_networks(values: Iterable[str | IPNetwork]) -> tuple[IPNetwork, ...]:
-    """CIDR ranges (a bare address is its own /32 or /128), for the allow-list setting."""
-    return tuple(ipaddress.ip_network(value, strict=False) for value in values)
-
-
 class GuardedBackend(httpcore2.SyncBackend):
     """httpcore's network backend with the policy applied to every TCP connection it opens.
 

@@ -1,6 +1,6 @@
 """Raising webhook events where things happen: measured frames with violations, a new current calibration, a
 camera's calibration status changing. Each function runs inside the caller's transaction and returns the ids of
-the deliveries it stored; the caller queues them after committing (SQL first, queue second).
+the deliveries it stored; the caller queues them after committing (SQL first, queue second: `announce`).
 
 Nothing is computed or stored when no enabled subscription wants the event, so cameras nobody subscribed to pay
 one small query per batch.
@@ -9,16 +9,19 @@ one small query per batch.
 from __future__ import annotations
 
 import json
+import logging
 import uuid
 from collections.abc import Sequence
 from datetime import datetime, timedelta
 
 from sqlalchemy.orm import Session
 
+from service.dispatch import UNAVAILABLE_ERRORS, Dispatcher
+from service.domain import FrameOutcome
+from service.http.links import frame_url
 from service.settings import Settings
-from service.store import webhooks as store
 from service.store.models import CalibrationVersion, Camera, utc_now
-from service.store.repository import FrameOutcome
+from service.webhooks import repository as store
 
 from .cooldown import Candidate
 from .payloads import (
@@ -35,6 +38,8 @@ from .payloads import (
     feet,
 )
 
+log = logging.getLogger(__name__)
+
 VIOLATION_DETECTED = "violation.detected"
 CALIBRATION_UPDATED = "calibration.updated"
 CALIBRATION_STATUS_CHANGED = "calibration.status_changed"
@@ -45,8 +50,15 @@ def first_attempts(delivery_ids: Sequence[uuid.UUID]) -> list[tuple[uuid.UUID, i
     return [(delivery_id, 1, None) for delivery_id in delivery_ids]
 
 
-def frame_url(camera_id: str, frame_id: uuid.UUID) -> str:
-    return f"/v1/cameras/{camera_id}/frames/{frame_id}"
+def announce(dispatcher: Dispatcher, deliveries: Sequence[uuid.UUID]) -> None:
+    """Queue committed deliveries' first attempts; if the queue is down they stay pending in SQL, and the workers'
+    sweep queues them (so this never fails the caller)."""
+    if not deliveries:
+        return
+    try:
+        dispatcher.deliveries_due(first_attempts(deliveries))
+    except UNAVAILABLE_ERRORS as exc:
+        log.warning("could not queue %d webhook deliveries (the sweep will): %s", len(deliveries), exc)
 
 
 def _candidates(outcome: FrameOutcome) -> list[Candidate]:

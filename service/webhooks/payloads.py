@@ -8,12 +8,15 @@ from __future__ import annotations
 
 import uuid
 from datetime import datetime
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 from pydantic import BaseModel, Field
 
-from service.schemas import METRES_PER_FOOT, CalibrationUncertainty
-from service.store.models import CalibrationVersion
+from service.calibration.schemas import CalibrationUncertainty, SolvedCamera, solution_fields
+from service.domain import METRES_PER_FOOT
+
+if TYPE_CHECKING:
+    from service.store.models import CalibrationVersion
 
 CameraStatus = Literal["uncalibrated", "calibrated"]
 
@@ -58,18 +61,17 @@ class ViolationData(BaseModel):
     cooldown_s: float = Field(description="A pair alerted here raises no new alert for this long while it stays.")
 
 
-class CalibrationData(BaseModel):
-    """A camera's calibration as of the event: the current version's values, or nulls when uncalibrated."""
-
+class _CalibrationHeader(BaseModel):
     camera_id: str
     status: CameraStatus
     version: int | None
-    fx_px: float | None
-    fy_px: float | None
-    cx_px: float | None
-    cy_px: float | None
-    normal: tuple[float, float, float] | None = Field(description="Unit ground normal in the camera frame, up.")
-    rho_m: float | None = Field(description="Camera height above the ground plane.")
+
+
+# pydantic orders inherited fields from the last base to the first: the header's, then the camera's, then the
+# class's own, which is the order receivers have always received.
+class CalibrationData(SolvedCamera, _CalibrationHeader):
+    """A camera's calibration as of the event: the current version's values, or nulls when uncalibrated."""
+
     uncertainty: CalibrationUncertainty | None
     person_height_m: float | None
     people_used: int | None
@@ -115,27 +117,11 @@ def calibration_fields(camera_id: str, version: CalibrationVersion | None) -> di
     if version is None:
         empty = dict.fromkeys(set(CalibrationData.model_fields) - {"camera_id", "status"})
         return {"camera_id": camera_id, "status": "uncalibrated", **empty}
-    normal = (version.normal_x, version.normal_y, version.normal_z)
     return {
         "camera_id": camera_id,
         "status": "calibrated",
         "version": version.version,
-        "fx_px": version.fx_px,
-        "fy_px": version.fy_px,
-        "cx_px": version.cx_px,
-        "cy_px": version.cy_px,
-        "normal": None if None in normal else normal,
-        "rho_m": version.rho_m,
-        "uncertainty": CalibrationUncertainty(
-            fx_std_px=version.fx_std_px,
-            fy_std_px=version.fy_std_px,
-            normal_std_deg=version.normal_std_deg,
-            rho_std_m=version.rho_std_m,
-            noise_px=version.noise_px,
-        ),
-        "person_height_m": version.person_height_m,
-        "people_used": version.people_used,
-        "inliers": version.inliers,
+        **solution_fields(version),
         "evidence_count": version.evidence_count,
         "forced": version.forced,
         "solved_at": version.created_at,

@@ -12,7 +12,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, Field, StrictBool, field_validator
 
-from service.schemas import CameraId, Integer, StrictModel
+from service.http.schemas import CameraId, Integer, StrictModel
 from service.store.webhook_models import DESCRIPTION_MAX_LENGTH, EVENT_TYPES, WEBHOOK_URL_MAX_LENGTH
 
 from .signing import SECRET_DOCUMENTED_PATTERN, SECRET_PATTERN, secret_key

@@ -10,8 +10,7 @@ import pytest
 
 from service.analyze.errors import AnalyzeError
 from service.analyze.options import Threshold, parse_threshold
-
-from .conftest import analyze, write_image
+from tests.support.analyze import analyze, write_image
 
 
 def _one_line_error(output: str) -> str:

@@ -8,8 +8,7 @@ import pytest
 
 from service.analyze.errors import AnalyzeError
 from service.analyze.sources import ImageSource, SkippedFrame, SourceFrame, VideoSource, open_source
-
-from .conftest import TOWN_VIDEO, write_image
+from tests.support.analyze import TOWN_VIDEO, write_image
 
 
 def test_video_with_stride_and_max_frames(town: Path) -> None:

@@ -20,8 +20,7 @@ import pytest
 from click.testing import Result
 
 from tests.pose.towncentre import TownCentreCalibration, load_calibration
-
-from .conftest import TOWN_CALIBRATION, TOWN_VIDEO, analyze, write_image
+from tests.support.analyze import TOWN_CALIBRATION, TOWN_VIDEO, analyze, write_image
 
 STRIDE = 6
 VIDEO_FRAMES = list(range(0, 126, STRIDE))

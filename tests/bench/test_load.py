@@ -18,7 +18,7 @@ from bench.load_stats import KindStats
 from bench.metrics_text import delta_by, parse_metrics
 from bench.profile import ProfileSummary
 from service.cli import app
-from tests.shared import TOWN_CENTRE, model_dir_path, require_dir
+from tests.support.shared import TOWN_CENTRE, model_dir_path, require_dir
 
 
 def _centres(people: list[dict[str, list[list[float]]]]) -> tuple[np.ndarray, np.ndarray]:

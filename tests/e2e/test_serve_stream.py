@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from bench.simulate import SceneConfig, draw_scene
-from tests.api.conftest import coco_person
-from tests.serving import clean_environment, serve
+from tests.support.app import coco_person
+from tests.support.serving import clean_environment, serve
 
 FRAMES = 40
 PEOPLE_PER_FRAME = 10

@@ -33,8 +33,8 @@ from rq.registry import StartedJobRegistry
 
 from bench.simulate import Scene, SceneConfig, draw_scene
 from service.embedded_redis import redis_server_binary
-from service.problems import PROBLEM_MEDIA_TYPE
-from tests.serving import REPO, free_port, stop
+from service.http.problems import PROBLEM_MEDIA_TYPE
+from tests.support.serving import REPO, free_port, stop
 
 # Generous: a loaded two-core CI machine runs these next to everything else.
 DEADLINE_S = 90.0

@@ -39,8 +39,8 @@ from tests.faults.harness import (
     post_until_accepted,
     wait_until,
 )
-from tests.serving import Served, clean_environment, serve
-from tests.shared import TOWN_CENTRE, model_dir_path, require_dir
+from tests.support.serving import Served, clean_environment, serve
+from tests.support.shared import TOWN_CENTRE, model_dir_path, require_dir
 
 # A dead job is retried seconds after its heartbeat stops (service.queue.JOB_LIVENESS_TTL_S, then the next
 # maintenance); before that was fixed a killed solve held its camera for 12 minutes and a measuring run for 3.
@@ -211,7 +211,7 @@ def test_serve_restarts_its_redis_and_loses_no_accepted_frame(served: tuple[Serv
     # Any post that met the outage was answered as a problem, never a 500; the frame was stored all the same, so
     # the client's retry of it was answered 200 with the same frame, not stored twice. (Usually one or two posts
     # meet it; none when serve's new Redis is up within redis-py's own reconnection retries. The 503 itself is
-    # pinned in process by tests/api/test_frames.py.)
+    # pinned in process by tests/frames/test_routes.py.)
     print(f"{len(refusals)} posts refused while Redis was down")
     assert all(r.is_problem and r.body["type"].endswith("/queue-unavailable") for r in refusals)
     assert all(r.headers.get("retry-after") for r in refusals)

@@ -40,9 +40,9 @@ from tests.faults.harness import (
     started_job,
     wait_until,
 )
-from tests.postgres import PostgresCluster, cluster_or_skip
-from tests.serving import clean_environment
-from tests.shared import model_dir_path
+from tests.support.postgres import PostgresCluster, cluster_or_skip
+from tests.support.serving import clean_environment
+from tests.support.shared import model_dir_path
 
 RECOVERY_DEADLINE_S = 60.0
 REDIS_DOWN_S = 1.5

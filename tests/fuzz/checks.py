@@ -23,7 +23,7 @@ from typing import Any
 
 from schemathesis import Case, CheckContext, Response
 
-from service.problems import PROBLEM_MEDIA_TYPE, TYPE_BASE
+from service.http.problems import PROBLEM_MEDIA_TYPE, TYPE_BASE
 
 # Problem types for refusals of schema-valid requests that depend on state or on data no schema can describe.
 STATED_PROBLEM_TYPES = frozenset(

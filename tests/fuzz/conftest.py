@@ -13,7 +13,7 @@ import pytest
 
 from tests.fuzz.tally import TALLY
 from tests.fuzz.world import FuzzWorld, WorldTemplate, open_world, seed_template
-from tests.store.conftest import sqlite_template
+from tests.support.databases import sqlite_template
 
 __all__ = ["sqlite_template"]
 

@@ -23,11 +23,11 @@ import pytest
 from fastapi.testclient import TestClient
 
 from service.app import create_app
-from service.dispatch import RecordingDispatcher
-from service.problems import PROBLEM_MEDIA_TYPE
-from tests.api.conftest import ADMIN_KEY, bearer, coco_person
+from service.http.problems import PROBLEM_MEDIA_TYPE
 from tests.fuzz.tally import TALLY
 from tests.fuzz.world import CAMERA, HEIGHT_PX, WIDTH_PX, WorldTemplate, settings_for
+from tests.support.app import ADMIN_KEY, bearer, coco_person
+from tests.support.dispatch import RecordingDispatcher
 
 FRAMES = f"/v1/cameras/{CAMERA}/frames"
 KEYPOINTS = f"/v1/cameras/{CAMERA}/keypoints"

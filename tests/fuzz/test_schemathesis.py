@@ -25,12 +25,12 @@ from schemathesis.core.parameters import ParameterLocation
 from schemathesis.specs.openapi.checks import negative_data_rejection, positive_data_acceptance
 from schemathesis.transport.serialization import Binary
 
+from service.frames.uploads import IMAGE_FIELD
 from service.openapi import OPENAPI_PATH
-from service.uploads import IMAGE_FIELD
-from tests.api.conftest import ADMIN_KEY, bearer
 from tests.fuzz import checks
 from tests.fuzz.tally import TALLY
 from tests.fuzz.world import CAMERA, WEBHOOK_URL, FuzzWorld
+from tests.support.app import ADMIN_KEY, bearer
 
 ADMIN_EXAMPLES = int(os.environ.get("POSEMETRY_FUZZ_EXAMPLES", "15"))
 OTHER_EXAMPLES = max(5, ADMIN_EXAMPLES // 4)

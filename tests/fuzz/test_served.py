@@ -19,8 +19,8 @@ import psutil
 import pytest
 
 from tests.fuzz.tally import TALLY
-from tests.serving import Served, clean_environment, serve
-from tests.shared import TOWN_CENTRE, model_dir_path, require_dir
+from tests.support.serving import Served, clean_environment, serve
+from tests.support.shared import TOWN_CENTRE, model_dir_path, require_dir
 
 CAMERA = "street"
 CATEGORY = "curated: served (real uvicorn and workers)"

@@ -24,13 +24,15 @@ from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
 from service.app import create_app
-from service.dispatch import RecordingDispatcher
-from service.results import process_frame
+from service.calibration.repository import add_calibration
+from service.cameras.repository import get_camera
+from service.domain import CalibrationValues
+from service.frames.repository import get_frame
 from service.settings import Settings
-from service.store import repository
-from service.store import webhooks as webhook_store
-from service.store.repository import CalibrationValues
-from tests.api.conftest import ADMIN_KEY, bearer
+from service.webhooks import repository as webhook_store
+from tests.support.app import ADMIN_KEY, bearer
+from tests.support.dispatch import RecordingDispatcher
+from tests.support.measure import process_frame
 
 CAMERA = "lobby-1"
 OTHER_CAMERA = "yard-2"
@@ -108,9 +110,9 @@ def seed_template(database: Path) -> WorldTemplate:
         subscription = _ok(client.post("/v1/webhooks", json={"url": WEBHOOK_URL, "camera_ids": [CAMERA]}))
         scoped = _ok(client.post("/v1/keys", json={"name": "fuzz: one camera", "cameras": [CAMERA]}))
     with app.state.session_factory() as session:
-        calibration = repository.add_calibration(session, CAMERA, CALIBRATION, make_current=True)
-        frame = repository.get_frame(session, CAMERA, uuid.UUID(measured["frame_id"]))
-        outcome = process_frame(session, frame, repository.get_camera(session, CAMERA), calibration)  # type: ignore[arg-type]
+        calibration = add_calibration(session, CAMERA, CALIBRATION, make_current=True)
+        frame = get_frame(session, CAMERA, uuid.UUID(measured["frame_id"]))
+        outcome = process_frame(session, frame, get_camera(session, CAMERA), calibration)  # type: ignore[arg-type]
         assert outcome.violations, "the seeded frame should hold a violation, for the heat map"
         subscriptions = [webhook_store.get_subscription(session, uuid.UUID(subscription["id"]))]
         deliveries = webhook_store.raise_event(

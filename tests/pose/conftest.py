@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from service.pose.pipeline import TopDownPose
-from tests.shared import TOWN_CENTRE, model_dir_path
+from tests.support.shared import TOWN_CENTRE, model_dir_path
 
 TOWN = TOWN_CENTRE
 IMAGE_SIZE = (1920, 1080)

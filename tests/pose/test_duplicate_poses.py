@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.keypoints import people_from_detections
+from service.frames.keypoints import people_from_detections
 from service.pose.pipeline import TopDownPose
 from service.pose.types import DetectedPerson
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from service.keypoints import coco_centres
+from service.frames.keypoints import coco_centres
 from service.pose.detector import PersonDetector
 from service.pose.model_files import DETECTOR, LIGHTNING, POSE_INPUT_PX, REGISTRY, PoseModelName
 from service.pose.movenet import INPUT_NAME, OUTPUT_NAME, SPLIT_TOLERANCE, MoveNet, crop_window, extract_crop

@@ -15,10 +15,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from service.frames.schemas import PairDistance
 from service.geometry.calibration import Calibration
 from service.render.ground import GroundFrame
 from service.render.overlay import PersonMark
-from service.schemas import PairDistance
 
 
 def read_ci(path: Path) -> dict[str, float]:

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 
 from bench.simulate import Scene, SceneConfig, draw_scene
+from service.domain import PersonIn
+from service.frames.schemas import FrameResult
+from service.frames.service import compute_frame_result
 from service.geometry.calibration import Calibration
-from service.results import compute_frame_result
-from service.schemas import FrameResult
 from service.store.models import CalibrationVersion
-from service.store.repository import PersonIn
 
 
 def tilted_scene(

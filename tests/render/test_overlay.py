@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
+from service.frames.schemas import PairDistance
 from service.render.grid import SIX_FEET_M
 from service.render.ground import GroundFrame
 from service.render.overlay import (
@@ -17,7 +18,6 @@ from service.render.overlay import (
     violators,
 )
 from service.render.style import DARK, GREEN, RED, Style
-from service.schemas import PairDistance
 from service.store.models import Observation, pack_keypoints
 from tests.render.scenes import calibration_of, people_of, result_of, tilted_scene
 

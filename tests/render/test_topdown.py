@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from service.frames.schemas import PairDistance
 from service.render.overlay import PersonMark
 from service.render.style import GREEN, RED, WHITE
 from service.render.topdown import BACKGROUND, TopDownView, fit_view, nice_step, render_topdown
-from service.schemas import PairDistance
 from tests.render.scenes import calibration_of, tilted_scene
 
 # 801 x 801 pixels, 1 cm per pixel, centred on (0, 3) m: (u, v) -> (400 + 100 u, 400 - 100 (v - 3)).

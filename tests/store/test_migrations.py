@@ -5,15 +5,31 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from sqlalchemy import inspect
+from alembic.autogenerate import compare_metadata
+from alembic.migration import MigrationContext
+from alembic.script import ScriptDirectory
+from sqlalchemy import Connection, inspect
 from typer.testing import CliRunner
 
+from service.calibration.evidence import sample_key
 from service.cli import app
 from service.settings import get_settings
 from service.store import make_engine
-from service.store.migrate import current_revision, head_revision, schema_differences, upgrade
+from service.store.migrate import alembic_config, current_revision, upgrade
 from service.store.models import Base
-from service.store.repository import sample_key
+
+
+def head_revision() -> str | None:
+    return ScriptDirectory.from_config(alembic_config()).get_current_head()
+
+
+def schema_differences(connection: Connection) -> list[object]:
+    """What autogenerate would change to make the database match the models: empty when they agree."""
+    context = MigrationContext.configure(connection, opts={"compare_type": True, "compare_server_default": False})
+    return list(compare_metadata(context, Base.metadata))
+
+
+pytestmark = pytest.mark.both_backends
 
 TABLES = {"cameras", "frames", "frame_images", "observations", "calibrations", "violation_events", "api_keys"}
 WEBHOOK_TABLES = {

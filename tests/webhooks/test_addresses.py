@@ -11,14 +11,8 @@ from typing import Any
 import httpcore2
 import pytest
 
-from service.webhooks.addresses import (
-    AddressRefusedError,
-    GuardedBackend,
-    check_url,
-    parse_networks,
-    refusal,
-)
-from tests.webhooks.receiver import Receiver
+from service.webhooks.addresses import AddressRefusedError, GuardedBackend, check_url, refusal
+from tests.support.receiver import Receiver, parse_networks
 
 REFUSED = {
     "127.0.0.1": "loopback",

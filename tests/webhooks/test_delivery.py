@@ -8,16 +8,9 @@ from email.utils import formatdate
 
 import pytest
 
-from service.webhooks.addresses import parse_networks
-from service.webhooks.delivery import (
-    RESPONSE_LOG_BYTES,
-    AttemptResult,
-    decide_attempt,
-    retry_delay_s,
-    send,
-)
+from service.webhooks.delivery import RESPONSE_LOG_BYTES, AttemptResult, decide_attempt, retry_delay_s, send
 from service.webhooks.signing import generate_secret, signed_headers
-from tests.webhooks.receiver import Answer, Receiver
+from tests.support.receiver import Answer, Receiver, parse_networks
 
 LOOPBACK = parse_networks(["127.0.0.0/8"])
 BODY = b'{"type":"calibration.updated","timestamp":"2026-01-01T00:00:00Z","data":{}}'

@@ -15,7 +15,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from service.queue import CALIBRATION_QUEUE, JOB_LIVENESS_TTL_S, CameraGate, RedisDispatcher, RequestOutcome
 from service.settings import get_settings
-from tests.workers.conftest import simulated_camera, store_frames
+from tests.support.jobs import simulated_camera, store_frames
 from workers import recovery
 from workers.liveness import Pacemaker, forget_dead_executions
 from workers.main import requeue_pending
@@ -67,15 +67,15 @@ def test_a_forced_request_stands_until_a_run_of_it_completes(connection: redis.R
 
 
 def test_the_recovery_pass_asks_again_for_a_forced_solve_that_failed(
-    sessions: sessionmaker[Session], dispatcher: RedisDispatcher, connection: redis.Redis
+    sessions: sessionmaker[Session], redis_dispatcher: RedisDispatcher, connection: redis.Redis
 ) -> None:
     camera = simulated_camera(sessions)
     store_frames(sessions, camera, 1)  # 10 people: not due (30 needed)
-    gate = dispatcher.gates[CALIBRATION_QUEUE]
+    gate = redis_dispatcher.gates[CALIBRATION_QUEUE]
     gate.request(camera.camera_id, "j1", forced=True)
     gate.start(camera.camera_id, "j1")
     gate.finish(camera.camera_id, "j1", "j2", completed=False)
-    assert requeue_pending(get_settings(), dispatcher).calibrations == 1
+    assert requeue_pending(get_settings(), redis_dispatcher).calibrations == 1
     assert Queue(CALIBRATION_QUEUE, connection=connection).count == 1
 
 

@@ -19,12 +19,13 @@ import redis
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session, sessionmaker
 
-from service.cli import QUEUE_NAMES, default_process_split
+from service.cli.processes import QUEUE_NAMES
 from service.queue import QUEUES, RedisDispatcher
+from service.runtime import default_process_split
 from service.store import Frame
-from tests.serving import REPO, clean_environment, serve, stop, wait_for
-from tests.shared import TOWN_CENTRE, model_dir_path, require_dir
-from tests.workers.conftest import IMAGE_SIZE, simulated_camera, store_frames
+from tests.support.jobs import IMAGE_SIZE, simulated_camera, store_frames
+from tests.support.serving import REPO, clean_environment, serve, stop, wait_for
+from tests.support.shared import TOWN_CENTRE, model_dir_path, require_dir
 
 TOKEN = re.compile(r"pm_[0-9a-f]{12}_[0-9A-Za-z]{43}")
 
@@ -35,11 +36,11 @@ def test_queue_names_agree() -> None:
 
 
 def test_worker_subprocess_answers_stored_and_dispatched_frames(
-    sessions: sessionmaker[Session], dispatcher: RedisDispatcher, connection: redis.Redis
+    sessions: sessionmaker[Session], redis_dispatcher: RedisDispatcher, connection: redis.Redis
 ) -> None:
     camera = simulated_camera(sessions)
     store_frames(sessions, camera, 2)  # accepted while Redis was down: only the worker's start-up pass finds them
-    store_frames(sessions, camera, 3, dispatcher=dispatcher)
+    store_frames(sessions, camera, 3, dispatcher=redis_dispatcher)
     worker = subprocess.Popen(
         [sys.executable, "-m", "service.cli", "worker", "--queue", "calibration", "--queue", "frames"],
         cwd=REPO,
@@ -55,7 +56,7 @@ def test_worker_subprocess_answers_stored_and_dispatched_frames(
     finally:
         returncode = stop(worker)
     assert returncode == 0  # SIGTERM is a warm shutdown, not a crash
-    assert dispatcher.calibration_state(camera.camera_id) == "idle"
+    assert redis_dispatcher.calibration_state(camera.camera_id) == "idle"
 
 
 def test_serve_runs_everything_and_shuts_down_cleanly(tmp_path: Path, sessions: sessionmaker[Session]) -> None:

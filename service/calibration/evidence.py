@@ -1,0 +1,185 @@
+"""The calibration's evidence in the store: every usable person keyed for sampling, and balanced samples of them.
+
+People are stored with the sampling-grid cell of their ankle centre (service.geometry.evidence.grid_cells, the
+grid the in-memory sampler of `posemetry analyze` uses too) and, once the next solve of their camera starts, a
+pseudo-random sample key. A sample then reads a few index ranges per cell, whatever is stored.
+"""
+
+from __future__ import annotations
+
+import random
+from dataclasses import dataclass, field
+from typing import Any, cast
+
+import numpy as np
+from sqlalchemy import BigInteger, ColumnElement, Select, Table, literal, select, true, union_all, update
+from sqlalchemy.orm import Session
+
+from service.geometry.evidence import SAMPLE_GRID
+from service.store.models import SAMPLE_KEY_SPACE, Observation
+
+GRID_CELLS = SAMPLE_GRID[0] * SAMPLE_GRID[1]
+_OBSERVATIONS = cast(Table, Observation.__table__)
+
+
+@dataclass(frozen=True)
+class EvidenceSample:
+    """A calibration's input: shoulder/ankle centres of a balanced sample of usable observations.
+
+    `queries` and `rows_read` show the cost: rows_read stays near len(self) however much is stored.
+    """
+
+    observation_ids: list[int]
+    cells: list[int]
+    tops_px: np.ndarray
+    bottoms_px: np.ndarray
+    queries: int = 0
+    rows_read: int = 0
+
+    def __len__(self) -> int:
+        return len(self.observation_ids)
+
+
+# Fibonacci hashing of the observation id: the odd multiplier (2^32 / golden ratio) makes it a bijection on
+# [0, SAMPLE_KEY_SPACE), so ids below 2^31 never tie, and consecutive ids (one frame's people, one camera's
+# minutes) land far apart and evenly over the key space, so a range of keys samples evenly over time. Computed by
+# the database (products stay below 2^63 on both backends); `sample_key` is the same function in Python.
+_KEY_MULTIPLIER = 2654435761
+
+
+def sample_key(observation_id: int) -> int:
+    return (observation_id % SAMPLE_KEY_SPACE) * _KEY_MULTIPLIER % SAMPLE_KEY_SPACE
+
+
+def _sample_key_sql(observation_id: ColumnElement[int]) -> ColumnElement[int]:
+    space, multiplier = literal(SAMPLE_KEY_SPACE, BigInteger), literal(_KEY_MULTIPLIER, BigInteger)
+    return (observation_id % space) * multiplier % space
+
+
+def key_new_evidence(session: Session, camera_id: str, *, limit: int) -> int:
+    """Give up to `limit` of the camera's unkeyed people their sample keys, oldest first; returns how many.
+
+    Keying in bulk is what keeps ingest cheap: the sampling index is random in (cell, sample_key), so one person
+    per insert dirtied one index page per person, while thousands at once share pages. Callers loop over short
+    transactions until this returns less than `limit`, so ingest never waits long for the write lock.
+    """
+    if limit < 1:
+        raise ValueError(f"limit must be positive, got {limit}")
+    oldest = (
+        select(_OBSERVATIONS.c.id)
+        .where(_OBSERVATIONS.c.camera_id == camera_id, _OBSERVATIONS.c.sample_key.is_(None))
+        .order_by(_OBSERVATIONS.c.id)
+        .limit(limit)
+    )
+    result = session.execute(
+        update(_OBSERVATIONS)
+        .where(_OBSERVATIONS.c.id.in_(oldest.scalar_subquery()))
+        .values(sample_key=_sample_key_sql(_OBSERVATIONS.c.id))
+    )
+    return int(result.rowcount)  # type: ignore[attr-defined]
+
+
+@dataclass
+class _CellCursor:
+    """Where reading one cell in sample_key order resumes: keys >= start first, then wrapping to [0, start)."""
+
+    start: int
+    wrapped: bool = False
+    last: tuple[int, int] | None = None  # (sample_key, id) of the last row read
+    rows: list[Any] = field(default_factory=list)
+
+
+_SAMPLE_COLUMNS = (
+    Observation.id,
+    Observation.cell,
+    Observation.sample_key,
+    Observation.shoulder_x_px,
+    Observation.shoulder_y_px,
+    Observation.ankle_x_px,
+    Observation.ankle_y_px,
+)
+
+
+def _cell_page(camera_id: str, cell: int, cursor: _CellCursor, n: int) -> Select[*tuple[Any, ...]]:
+    """The next n rows of one cell: an index range scan on (camera_id, usable, cell, sample_key)."""
+    key, oid = Observation.sample_key, Observation.id
+    conditions = [
+        Observation.camera_id == camera_id,
+        Observation.usable == true(),
+        Observation.cell == cell,
+        key.is_not(None),  # the partial index holds keyed people only
+    ]
+    if cursor.wrapped:
+        conditions.append(key < cursor.start)
+    if cursor.last is not None:
+        last_key, last_id = cursor.last
+        # The plain bound lets both backends start the index scan at last_key; the OR breaks key ties by id.
+        conditions += [key >= last_key, (key > last_key) | (oid > last_id)]
+    elif not cursor.wrapped:
+        conditions.append(key >= cursor.start)
+    return select(*_SAMPLE_COLUMNS).where(*conditions).order_by(key, oid).limit(n)
+
+
+def sample_evidence(session: Session, camera_id: str, *, cap: int, seed: int = 0) -> EvidenceSample:
+    """At most `cap` usable observations, spread as evenly over the image grid as the data allow.
+
+    Round-robin over grid cells: every cell contributes equally, and cells with fewer people than their share
+    give the remainder to the others (water-filling). Within a cell the order is the stored pseudo-random
+    sample_key, read from a seed-dependent start, so a sample is random, reproducible for a given seed, and
+    differs between seeds. The work is O(cap + cells) rows, whatever is stored: each round is one statement, a
+    UNION ALL of one LIMITed index range scan per cell that is still short of the current level (per-cell LIMIT
+    subqueries are the only "top n per group" that SQLite and PostgreSQL both run without reading every row;
+    window functions and LATERAL do not qualify). Typically two to four rounds.
+    """
+    if cap < 1:
+        raise ValueError(f"cap must be positive, got {cap}")
+    rng = random.Random(seed)
+    start = rng.randrange(SAMPLE_KEY_SPACE)
+    cell_order = list(range(GRID_CELLS))
+    rng.shuffle(cell_order)
+    cursors = {cell: _CellCursor(start) for cell in range(GRID_CELLS)}
+    active = set(cursors)
+    level = queries = rows_read = 0
+    while active:
+        wanted = {cell: level - len(cursors[cell].rows) for cell in active if len(cursors[cell].rows) < level}
+        if not wanted:
+            total = sum(len(c.rows) for c in cursors.values())
+            if total >= cap:
+                break
+            level += -(-(cap - total) // len(active))
+            wanted = {cell: level - len(cursors[cell].rows) for cell in active}
+        pages = [_cell_page(camera_id, cell, cursors[cell], n) for cell, n in sorted(wanted.items())]
+        stmt = pages[0] if len(pages) == 1 else union_all(*(page.subquery().select() for page in pages))
+        rows = session.execute(stmt).all()
+        queries += 1
+        rows_read += len(rows)
+        by_cell: dict[int, list[Any]] = {cell: [] for cell in wanted}
+        for row in rows:
+            by_cell[row.cell].append(row)
+        for cell, n in wanted.items():
+            cursor, got = cursors[cell], sorted(by_cell[cell], key=lambda r: (r.sample_key, r.id))
+            cursor.rows.extend(got)
+            if got:
+                cursor.last = (got[-1].sample_key, got[-1].id)
+            if len(got) < n:
+                if cursor.wrapped:
+                    active.discard(cell)
+                else:
+                    cursor.wrapped, cursor.last = True, None
+    chosen: list[Any] = []
+    for rank in range(level):
+        for cell in cell_order:
+            if len(chosen) == cap:
+                break
+            if rank < len(cursors[cell].rows):
+                chosen.append(cursors[cell].rows[rank])
+    tops = np.array([(r.shoulder_x_px, r.shoulder_y_px) for r in chosen], dtype=float).reshape(-1, 2)
+    bottoms = np.array([(r.ankle_x_px, r.ankle_y_px) for r in chosen], dtype=float).reshape(-1, 2)
+    return EvidenceSample(
+        observation_ids=[int(r.id) for r in chosen],
+        cells=[int(r.cell) for r in chosen],
+        tops_px=tops,
+        bottoms_px=bottoms,
+        queries=queries,
+        rows_read=rows_read,
+    )

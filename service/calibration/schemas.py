@@ -1,0 +1,130 @@
+"""Bodies of the calibration routes, and the fields of a solve that the webhook payloads repeat.
+
+A solve's camera (`SolvedCamera`) and how a stored version maps onto the bodies (`solution_fields`) are defined
+once here: the history's entries, the camera's current calibration and the `calibration.*` webhook payloads
+(service.webhooks.payloads) all say the same thing the same way.
+"""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import TYPE_CHECKING, Any, Literal
+
+from pydantic import BaseModel, Field
+
+if TYPE_CHECKING:
+    from service.store.models import CalibrationVersion
+
+
+class CalibrationUncertainty(BaseModel):
+    """1-sigma uncertainties of a solve."""
+
+    fx_std_px: float | None
+    fy_std_px: float | None
+    normal_std_deg: float | None
+    rho_std_m: float | None
+    noise_px: float | None = Field(description="Keypoint noise estimated from the solve's residuals.")
+
+
+class SolvedCamera(BaseModel):
+    """The camera a solve found (nulls for a solve that found none)."""
+
+    fx_px: float | None
+    fy_px: float | None
+    cx_px: float | None
+    cy_px: float | None
+    normal: tuple[float, float, float] | None = Field(description="Unit ground normal in the camera frame, up.")
+    rho_m: float | None = Field(description="Camera height above the ground plane.")
+
+
+# The fields `solution_fields` fills, in the bodies' order.
+SOLUTION_FIELDS = (*SolvedCamera.model_fields, "uncertainty", "person_height_m", "people_used", "inliers")
+
+
+def solution_fields(version: CalibrationVersion) -> dict[str, Any]:
+    """What a stored solve found, as the bodies carry it: the camera, its uncertainty and what it rests on."""
+    normal = (version.normal_x, version.normal_y, version.normal_z)
+    return {
+        "fx_px": version.fx_px,
+        "fy_px": version.fy_px,
+        "cx_px": version.cx_px,
+        "cy_px": version.cy_px,
+        "normal": None if None in normal else normal,
+        "rho_m": version.rho_m,
+        "uncertainty": CalibrationUncertainty(
+            fx_std_px=version.fx_std_px,
+            fy_std_px=version.fy_std_px,
+            normal_std_deg=version.normal_std_deg,
+            rho_std_m=version.rho_std_m,
+            noise_px=version.noise_px,
+        ),
+        "person_height_m": version.person_height_m,
+        "people_used": version.people_used,
+        "inliers": version.inliers,
+    }
+
+
+class _VersionHeader(BaseModel):
+    version: int
+    status: Literal["ok", "failed"]
+    reason: str | None
+    is_current: bool
+    forced: bool
+
+
+# pydantic orders inherited fields from the last base to the first: the header's, then the camera's, then the
+# class's own, which is the order clients have always received.
+class CalibrationVersionOut(SolvedCamera, _VersionHeader):
+    """One solve of a camera, successful or not."""
+
+    uncertainty: CalibrationUncertainty
+    person_height_m: float
+    people_used: int
+    inliers: int
+    evidence_count: int = Field(description="Usable people stored when this solve ran.")
+    duration_s: float | None
+    created_at: datetime
+
+
+class CalibrationStatus(BaseModel):
+    """A camera's calibration state (`GET /v1/cameras/{camera_id}/calibration`).
+
+    `uncalibrated`: no usable calibration yet and none due; `people_needed` says how many more usable people
+    (both shoulders and both ankles seen, not at the image border) must arrive before the next solve.
+    `calibrating`: enough evidence for a solve that has not produced a current calibration yet.
+    `calibrated`: the fields below describe the current version.
+    """
+
+    camera_id: str
+    status: Literal["uncalibrated", "calibrating", "calibrated"]
+    people_needed: int = Field(description="More usable people needed before the next solve (0 when due).")
+    evidence_count: int = Field(description="Usable people stored for this camera now.")
+    version: int | None
+    fx_px: float | None
+    fy_px: float | None
+    cx_px: float | None
+    cy_px: float | None
+    normal: tuple[float, float, float] | None
+    rho_m: float | None
+    uncertainty: CalibrationUncertainty | None
+    person_height_m: float | None
+    people_used: int | None
+    inliers: int | None
+    solved_evidence_count: int | None = Field(description="Usable people stored when the current version ran.")
+    last_failure: str | None = Field(description="Why the latest solve failed, when it did.")
+    updated_at: datetime | None
+
+
+class CalibrationHistory(BaseModel):
+    """Versions newest first; pass `next_before` as `before` for the next page (null: last page)."""
+
+    items: list[CalibrationVersionOut]
+    next_before: int | None
+
+
+class CalibrationRequested(BaseModel):
+    """The answer to a forced re-solve: it runs in a worker; poll the calibration for its outcome."""
+
+    camera_id: str
+    forced: bool
+    url: str

@@ -1,0 +1,221 @@
+"""A camera's calibration as a process: when a solve is due, solving on a sample of the stored evidence, and
+whether the new version becomes current.
+
+`solve_camera` is what the calibration job runs (workers.jobs.calibrate_camera is its RQ adapter). Database
+transactions are kept short and never span the solve itself: reads use read-only sessions, and on SQLite every
+writing transaction holds the one write lock, which the API needs to keep storing frames. A solve appends a
+version whose promotion to current follows a rule (`at_least_as_supported`), not arrival order, so a solve that
+runs twice (RQ retries a job whose process died) never makes things worse.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from service.calibration import evidence
+from service.calibration.repository import add_calibration, current_calibration
+from service.cameras.repository import CameraNotFoundError
+from service.domain import DONE, FAILED, GONE, SKIPPED, CalibrationValues
+from service.frames.repository import pending_frames
+from service.geometry import Calibration, Uncertainty
+from service.geometry.evidence import solve_evidence
+from service.observability.logs import JOBS_LOGGER
+from service.settings import Settings
+from service.store.models import CalibrationVersion, Camera, clip_reason
+from service.store.sessions import read_session_factory, transaction
+from service.webhooks.events import announce, calibration_deliveries
+
+if TYPE_CHECKING:
+    from service.queue import RedisDispatcher
+
+log = logging.getLogger(JOBS_LOGGER)
+
+# People keyed for sampling per transaction: the first chunk, then as many as fit KEY_TRANSACTION_S. Keying shares
+# index pages between people when a camera's index is small (100 000 people: 11 us per person), but with a million
+# stored each person dirties pages of its own (41 us per person), and a fixed 2 000 would hold SQLite's one write
+# lock for 80 ms while the API waits to store frames.
+KEY_CHUNK = 2000
+KEY_CHUNK_BOUNDS = (100, 20_000)
+KEY_TRANSACTION_S = 0.02
+
+
+def evidence_for_next_solve(camera: Camera, *, min_people: int, growth_factor: float) -> int:
+    """Usable evidence at which the next solve is due: min_people first, then growth_factor x the last solve's."""
+    if camera.evidence_at_last_solve <= 0:
+        return min_people
+    return max(min_people, math.ceil(growth_factor * camera.evidence_at_last_solve))
+
+
+def calibration_due(camera: Camera, *, min_people: int, growth_factor: float) -> bool:
+    """Whether evidence warrants a solve: a first one at min_people, then each time it grows by growth_factor."""
+    target = evidence_for_next_solve(camera, min_people=min_people, growth_factor=growth_factor)
+    return camera.usable_evidence_count >= target
+
+
+def people_needed(camera: Camera, settings: Settings) -> int:
+    """Usable people still missing before the next solve is due."""
+    target = evidence_for_next_solve(
+        camera, min_people=settings.calibration_min_people, growth_factor=settings.calibration_growth_factor
+    )
+    return max(0, target - camera.usable_evidence_count)
+
+
+def _relative_focal_std(fx_px: float | None, fx_std_px: float | None) -> float:
+    if fx_px is None or fx_std_px is None or not (math.isfinite(fx_std_px) and fx_px > 0):
+        return math.inf
+    return fx_std_px / fx_px
+
+
+def _normal_std_deg(value: float | None) -> float:
+    return value if value is not None and math.isfinite(value) else math.inf
+
+
+def at_least_as_supported(new: CalibrationValues, current: CalibrationVersion) -> bool:
+    """Whether a new solve may replace the current version without being forced.
+
+    Support is what the solve rests on: the people it kept as inliers, and how tightly they pin the camera
+    (relative focal-length and ground-normal uncertainty). A new solve qualifies when it keeps at least as many
+    inliers, or when it is at least as precise on both focal length and normal. It is refused only when it is
+    worse on both counts, i.e. fewer people agree with it *and* it is less certain: typically a sample that hit
+    a bad batch of detections, which should not silently overwrite a good calibration. Inlier counts alone are
+    not enough, because once evidence exceeds the sample cap every solve uses about the same number of people.
+    """
+    if new.status != "ok":
+        return False
+    if new.inliers >= current.inliers:
+        return True
+    new_fx = _relative_focal_std(new.fx_px, new.fx_std_px)
+    current_fx = _relative_focal_std(current.fx_px, current.fx_std_px)
+    return new_fx <= current_fx and _normal_std_deg(new.normal_std_deg) <= _normal_std_deg(current.normal_std_deg)
+
+
+def key_camera_evidence(settings: Settings, camera_id: str) -> int:
+    """Key every person the camera stored since its last solve, in short transactions; returns how many."""
+    total, chunk = 0, KEY_CHUNK
+    while True:
+        started = time.perf_counter()
+        with transaction(settings) as session:
+            keyed = evidence.key_new_evidence(session, camera_id, limit=chunk)
+        total += keyed
+        if keyed < chunk:
+            return total
+        per_person_s = max(time.perf_counter() - started, 1e-6) / keyed
+        low, high = KEY_CHUNK_BOUNDS
+        chunk = min(max(int(KEY_TRANSACTION_S / per_person_s), low), high)
+
+
+def solve_camera(settings: Settings, dispatcher: RedisDispatcher, camera_id: str, *, forced: bool) -> str:
+    """Solve the camera on a capped, spatially balanced sample of its evidence, unless no solve is due (a forced
+    one always is); store the version, make it current by the rule, raise its webhooks and have waiting frames
+    measured. Returns the job's outcome: done, failed (no camera found), skipped (kept, not current) or gone."""
+    with read_session_factory(settings)() as session:
+        camera = session.get(Camera, camera_id)
+        if camera is None:
+            return GONE
+        if not forced and not calibration_due(
+            camera, min_people=settings.calibration_min_people, growth_factor=settings.calibration_growth_factor
+        ):
+            # Frames that arrived during the previous solve saw "due" and asked again; if that solve already
+            # covered the growth, another one now would change nothing. Forced solves always run.
+            return SKIPPED
+    key_camera_evidence(settings, camera_id)
+    with read_session_factory(settings)() as session:
+        camera = session.get(Camera, camera_id)
+        if camera is None:
+            return GONE
+        sample = evidence.sample_evidence(session, camera_id, cap=settings.calibration_sample_cap)
+        evidence_count = int(camera.usable_evidence_count)
+        image_size = (camera.image_width_px, camera.image_height_px)
+        height_m, equal_focal, known_focal_px = camera.person_height_m, camera.equal_focal, camera.known_focal_px
+
+    started = time.perf_counter()
+    # The sample is already capped and balanced by the store; repeats (still people, a mannequin) count once.
+    solve = solve_evidence(
+        sample.tops_px, sample.bottoms_px, image_size, height_m, equal_focal=equal_focal, focal_px=known_focal_px
+    )
+    people_used = solve.people_used
+    duration_s = time.perf_counter() - started
+    if solve.calibration is not None:
+        values = CalibrationValues.from_solution(
+            solve.calibration, people_used=people_used, evidence_count=evidence_count, duration_s=duration_s
+        )
+    else:
+        values = CalibrationValues.failure(
+            clip_reason(solve.error or "no camera"),
+            person_height_m=height_m,
+            people_used=people_used,
+            evidence_count=evidence_count,
+            duration_s=duration_s,
+        )
+
+    try:
+        with transaction(settings) as session:
+            current = current_calibration(session, camera_id)
+            make_current = values.status == "ok" and (
+                forced or current is None or at_least_as_supported(values, current)
+            )
+            record = add_calibration(session, camera_id, values, make_current=make_current, forced=forced)
+            version = record.version
+            waiting = make_current and bool(pending_frames(session, camera_id, limit=1))
+            deliveries = calibration_deliveries(session, camera_id, record, current) if make_current else []
+    except CameraNotFoundError:
+        return GONE
+    log.info(
+        "camera %s: version %d %s%s (%d people sampled, %d after collapsing repeats, %d stored)",
+        camera_id,
+        version,
+        values.status,
+        ", current" if make_current else "",
+        len(sample),
+        people_used,
+        evidence_count,
+    )
+    announce(dispatcher, deliveries)
+    if waiting:
+        dispatcher.measure_requested([camera_id])
+    if values.status != "ok":
+        return FAILED
+    return DONE if make_current else SKIPPED
+
+
+def calibration_from_version(version: CalibrationVersion, image_size_px: tuple[int, int]) -> Calibration:
+    """The geometry's Calibration for a stored version, enough for `measure` (per-person arrays are empty).
+
+    The stored covariance is the geometry's canonical 5x5 one; a version without a complete covariance gets no
+    Uncertainty, so distances then carry keypoint noise only (its noise estimate is passed to measure separately).
+    """
+    if version.status != "ok" or None in (version.fx_px, version.fy_px, version.cx_px, version.cy_px, version.rho_m):
+        raise ValueError(f"calibration version {version.version} has no solved camera (status {version.status})")
+    uncertainty = None
+    cov = version.covariance
+    if cov is not None and all(v is not None for row in cov for v in row):
+        uncertainty = Uncertainty(
+            fx_px=version.fx_std_px or 0.0,
+            fy_px=version.fy_std_px or 0.0,
+            normal_deg=version.normal_std_deg or 0.0,
+            rho_m=version.rho_std_m or 0.0,
+            covariance=np.asarray(cov, dtype=float),
+            noise_px=version.noise_px or 0.0,
+        )
+    normal = np.array([version.normal_x, version.normal_y, version.normal_z], dtype=float)
+    return Calibration(
+        fx=float(version.fx_px),  # type: ignore[arg-type]
+        fy=float(version.fy_px),  # type: ignore[arg-type]
+        cx=float(version.cx_px),  # type: ignore[arg-type]
+        cy=float(version.cy_px),  # type: ignore[arg-type]
+        normal=normal / np.linalg.norm(normal),
+        rho=float(version.rho_m),  # type: ignore[arg-type]
+        image_size=(float(image_size_px[0]), float(image_size_px[1])),
+        height_m=float(version.person_height_m),
+        points_bottom=np.zeros((0, 3)),
+        points_top=np.zeros((0, 3)),
+        heights=np.zeros(0),
+        inliers=np.zeros(0, dtype=bool),
+        uncertainty=uncertainty,
+        distortion_k=float(version.distortion_k or 0.0),
+    )

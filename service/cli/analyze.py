@@ -1,0 +1,54 @@
+"""`posemetry analyze`: the service's pipeline, offline, on a video file or a folder of images (service.analyze)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+
+def analyze(
+    path: Path = typer.Argument(..., help="A video file, a folder of images (name order) or one image."),
+    out: Path = typer.Option(..., "--out", "-o", help="Folder for the results (created; earlier results replaced)."),
+    height: float = typer.Option(1.32, help="Ankle-centre-to-shoulder-centre height of the people, metres."),
+    equal_focal: bool = typer.Option(True, "--equal-focal/--free-focal", help="Square pixels (fx = fy), or not."),
+    stride: int = typer.Option(1, help="Analyse every n-th frame."),
+    max_frames: int | None = typer.Option(None, help="Analyse at most this many frames (after the stride)."),
+    pose_model: str | None = typer.Option(None, help="thunder or lightning (default: POSEMETRY_POSE_MODEL)."),
+    threshold: str = typer.Option("6ft", help="Violation distance with its unit, e.g. 6ft or 1.8m."),
+    focal_px: float | None = typer.Option(None, help="Known focal length in pixels: only the ground is solved."),
+    distortion: bool = typer.Option(False, "--distortion/--no-distortion", help="Also estimate lens distortion."),
+    images: bool = typer.Option(True, "--images/--no-images", help="Write an overlay and a map per frame."),
+    video: bool | None = typer.Option(
+        None, "--video/--no-video", help="Write overlay.mp4 and topdown.mp4 (default: for a video input)."
+    ),
+    image_format: str = typer.Option("png", help="png or jpg for the per-frame pictures."),
+    unit: str = typer.Option("m", help="Unit of the pictures' labels and grid: m (1 m cells) or ft (6 ft cells)."),
+    model_dir: Path | None = typer.Option(None, help="Pose-model folder (default: POSEMETRY_MODEL_DIR)."),
+    detector_px: int | None = typer.Option(
+        None,
+        help="Detector input size, a multiple of 32 (default: POSEMETRY_DETECTOR_INPUT_PX); larger finds "
+        "smaller people, at quadratic cost.",
+    ),
+) -> None:
+    """Offline: pose on every frame, one calibration from all of them, distances per frame, pictures and a video."""
+    from service.analyze.console import run_command
+    from service.analyze.options import AnalyzeOptions
+
+    options = AnalyzeOptions(
+        height_m=height,
+        equal_focal=equal_focal,
+        stride=stride,
+        max_frames=max_frames,
+        pose_model=pose_model,
+        threshold=threshold,
+        focal_px=focal_px,
+        distortion=distortion,
+        write_images=images,
+        write_video=video,
+        image_format=image_format,
+        unit=unit,
+        model_dir=model_dir,
+        detector_input_px=detector_px,
+    )
+    raise typer.Exit(run_command(path, out, options))

@@ -1,0 +1,94 @@
+"""Image frames as a process: find the people in a stored picture and store them as the frame's people.
+
+`detect_people` is what the pose job runs (workers.jobs.detect_people is its RQ adapter). The estimator is loaded
+once per worker process (`load_pose_estimator` caches it). A picture that cannot be analysed, or missing model
+files, fail this frame with the reason, not the worker. People are stored only while the frame is still
+`detecting`, so a pose job that runs twice (a retry after a crash) stores them once.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+import uuid
+from typing import TYPE_CHECKING
+
+from service.domain import DONE, FAILED, GONE, SKIPPED
+from service.frames.images import ImageError, decode
+from service.frames.keypoints import people_from_detections
+from service.frames.repository import frame_image, record_detection_failure, record_detections
+from service.observability.logs import JOBS_LOGGER, log_context
+from service.observability.metrics import POSE_INFERENCE
+from service.observability.request_id import request_id_context
+from service.settings import Settings
+from service.store.models import Camera, Frame
+from service.store.sessions import read_session_factory, transaction
+
+if TYPE_CHECKING:
+    from service.queue import RedisDispatcher
+
+log = logging.getLogger(JOBS_LOGGER)
+
+
+def detect_people(settings: Settings, dispatcher: RedisDispatcher, frame_uuid: uuid.UUID) -> str:
+    """Run pose inference on an image frame, store its people (the image goes unless the camera keeps images),
+    then have the camera's pending frames measured. Its log lines carry the request id of the request that
+    posted the image."""
+    frame_id = str(frame_uuid)
+    with read_session_factory(settings)() as session:
+        frame = session.get(Frame, frame_uuid)
+        if frame is None:
+            return GONE  # its camera was deleted after the frame was queued
+        if frame.status != "detecting":
+            # A duplicate run, or the retry of a run whose process died after storing the people and before it
+            # asked for them to be measured: ask again (deduplicated per camera, so a duplicate costs nothing).
+            if frame.status == "pending":
+                dispatcher.measure_requested([frame.camera_id])
+            return SKIPPED
+        camera = session.get(Camera, frame.camera_id)
+        image = frame_image(session, frame_uuid)
+        data = None if image is None else image.data
+        request_id = frame.request_id
+    if camera is None:
+        return GONE
+    # The frame's own request id: also right for a job queued again by a starting worker, which has no meta.
+    with request_id_context(request_id), log_context(camera_id=camera.id, frame_id=frame_id):
+        return _detect(settings, dispatcher, frame_uuid, camera, data)
+
+
+def _detect(
+    settings: Settings, dispatcher: RedisDispatcher, frame_uuid: uuid.UUID, camera: Camera, data: bytes | None
+) -> str:
+    from service.pose.model_files import ModelFilesError
+    from service.pose.pipeline import load_pose_estimator
+
+    try:
+        if data is None:
+            raise ImageError("the frame's image is no longer stored")
+        _header, bgr = decode(data, max_pixels=settings.max_image_pixels)
+        estimator = load_pose_estimator(settings)
+        started = time.perf_counter()
+        found = estimator(bgr)
+        inference_s = time.perf_counter() - started
+    except (ImageError, ModelFilesError) as exc:
+        log.warning("pose of frame %s of camera %s failed: %s", frame_uuid, camera.id, exc)
+        with transaction(settings) as session:
+            record_detection_failure(session, frame_uuid, str(exc))
+        return FAILED
+    POSE_INFERENCE.labels(model=estimator.name).observe(inference_s)
+    size = (camera.image_width_px, camera.image_height_px)
+    people = people_from_detections(found[: settings.max_people_per_frame], size)
+    with transaction(settings) as session:
+        stored = record_detections(session, frame_uuid, people, pose_model=estimator.name)
+    if stored is None:
+        return SKIPPED
+    log.info(
+        "frame %s of camera %s: %d people found in %.0f ms",
+        frame_uuid,
+        camera.id,
+        len(people),
+        inference_s * 1000,
+        extra={"people": len(people), "inference_ms": round(inference_s * 1000, 1), "pose_model": estimator.name},
+    )
+    dispatcher.measure_requested([camera.id])
+    return DONE

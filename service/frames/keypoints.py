@@ -1,0 +1,161 @@
+"""From posted people to the two points the geometry uses, and whether a person is calibration evidence (pure).
+
+The geometry needs, per person, the shoulder centre (top) and the ankle centre (bottom). Measuring a frame
+only needs one of them; calibrating needs both, from people who stand upright and are fully in view, because
+every calibration assumes the shoulder centre lies `person_height_m` straight above the ankle centre. The rules
+below therefore keep points for measurement generously and admit evidence conservatively:
+
+- Confidence: a centre exists only when *both* of its keypoints score at least `MIN_SCORE` (0.3, the usual
+  pose-model visibility cut-off). Averaging one confident and one guessed ankle moves the centre by up to half a
+  stride, which is worse than not having it.
+- Border: a person with either centre within `BORDER_FRACTION` (1%) of an image side is likely cut off by the
+  frame (the pose model then guesses the hidden joints at the edge), so they are not evidence.
+- Upright: the ankle centre must be below the shoulder centre in the image, and the shoulder-to-ankle segment
+  within `MAX_TILT_DEG` (60 degrees) of the image vertical. Perspective and camera roll tilt standing people
+  away from the image vertical (towards the vertical vanishing point), so a tight cut would reject real
+  evidence at the image sides; the rule only removes people who are plainly lying, falling or mis-detected.
+  Subtler cases (sitting, bending) are left to the calibration's RANSAC and misfit rejection, which handle them
+  against the whole evidence, something a per-person rule without a camera model cannot do.
+- Size: a segment shorter than `MIN_SEGMENT_PX` (8 px) carries more keypoint noise than direction.
+
+Centres posted explicitly (`shoulder`/`ankle`) have no scores; the border, upright and size rules still apply.
+
+One rule needs the whole frame: a top-down pipeline runs the pose model on each detection's crop, and two
+detections can yield the same pose, either because the detector boxed one person twice (a whole-body and a
+partial box) or because a crop around one person also holds a more salient neighbour and the single-person pose
+model reads the neighbour. The second pose is then a copy of the first: measured, it is a phantom person a few
+centimetres from the real one (a false violation in every such frame; seen on the Oxford Town Centre clip in
+most frames). `people_from_detections` therefore drops the points of a pose that repeats a more confident
+detection's pose (median distance between their keypoints under `DUPLICATE_POSE_FRACTION` of the box height):
+the detection is kept, with the reason, but is neither evidence nor placed.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from service.domain import PersonIn
+
+if TYPE_CHECKING:
+    from service.pose.types import DetectedPerson
+
+# COCO-17 order: nose, eyes (1, 2), ears (3, 4), shoulders (5, 6), elbows, wrists, hips (11, 12), knees, ankles.
+LEFT_SHOULDER, RIGHT_SHOULDER = 5, 6
+LEFT_ANKLE, RIGHT_ANKLE = 15, 16
+MIN_SCORE = 0.3
+BORDER_FRACTION = 0.01
+MAX_TILT_DEG = 60.0
+MIN_SEGMENT_PX = 8.0
+# Two poses in one frame are the same person when their keypoints lie this close (median over the keypoints
+# confident in both, as a fraction of the taller box). The same person read from two crops differs by a few
+# pixels (~1-2 % of their height); two people pressed together differ by a shoulder width (~25 %).
+DUPLICATE_POSE_FRACTION = 0.05
+MIN_SHARED_KEYPOINTS = 4
+
+Point = tuple[float, float]
+
+
+def _centre(keypoints: Sequence[Sequence[float]], a: int, b: int, min_score: float) -> Point | None:
+    """Midpoint of two keypoints, or None unless both are confident."""
+    ka, kb = keypoints[a], keypoints[b]
+    if ka[2] < min_score or kb[2] < min_score:
+        return None
+    return ((ka[0] + kb[0]) / 2.0, (ka[1] + kb[1]) / 2.0)
+
+
+def coco_centres(
+    keypoints: Sequence[Sequence[float]], *, min_score: float = MIN_SCORE
+) -> tuple[Point | None, Point | None]:
+    """(shoulder centre, ankle centre) of one COCO-17 person; None for a centre whose keypoints are not confident."""
+    shoulder = _centre(keypoints, LEFT_SHOULDER, RIGHT_SHOULDER, min_score)
+    ankle = _centre(keypoints, LEFT_ANKLE, RIGHT_ANKLE, min_score)
+    return shoulder, ankle
+
+
+def evidence_problem(shoulder: Point | None, ankle: Point | None, image_size_px: tuple[int, int]) -> str | None:
+    """Why a person is not usable as calibration evidence, or None when they are (see the module docstring)."""
+    if shoulder is None:
+        return "shoulders not confidently seen"
+    if ankle is None:
+        return "ankles not confidently seen"
+    width_px, height_px = image_size_px
+    margin_x_px, margin_y_px = BORDER_FRACTION * width_px, BORDER_FRACTION * height_px
+    for x, y in (shoulder, ankle):
+        if x < margin_x_px or x > width_px - margin_x_px or y < margin_y_px or y > height_px - margin_y_px:
+            return "touching the image border"
+    dx_px, dy_px = ankle[0] - shoulder[0], ankle[1] - shoulder[1]
+    if math.hypot(dx_px, dy_px) < MIN_SEGMENT_PX:
+        return f"shoulder-to-ankle segment shorter than {MIN_SEGMENT_PX:g} px"
+    if dy_px <= 0 or math.degrees(math.atan2(abs(dx_px), dy_px)) > MAX_TILT_DEG:
+        return f"not upright (ankles not below shoulders within {MAX_TILT_DEG:g} degrees)"
+    return None
+
+
+def person_from_keypoints(
+    keypoints: Sequence[Sequence[float]], image_size_px: tuple[int, int], *, min_score: float = MIN_SCORE
+) -> PersonIn:
+    """A COCO-17 person as the store's row: centres, raw keypoints (kept for re-analysis) and the verdict."""
+    shoulder, ankle = coco_centres(keypoints, min_score=min_score)
+    return PersonIn(
+        shoulder_px=shoulder,
+        ankle_px=ankle,
+        keypoints=keypoints,
+        unusable_reason=evidence_problem(shoulder, ankle, image_size_px),
+    )
+
+
+def person_from_detection(person: DetectedPerson, image_size_px: tuple[int, int]) -> PersonIn:
+    """A person the pose model found, as the store's row: its keypoints' verdict plus the detector's box and score."""
+    row = person_from_keypoints(person.coco_keypoints(), image_size_px)
+    return replace(row, box_px=tuple(float(v) for v in person.box_xyxy_px), detection_score=person.detection_score)
+
+
+def person_from_centres(shoulder: Point | None, ankle: Point | None, image_size_px: tuple[int, int]) -> PersonIn:
+    """A person posted as explicit centres (ankle None when hidden) as the store's row, with the verdict."""
+    shoulder_px = None if shoulder is None else (float(shoulder[0]), float(shoulder[1]))
+    ankle_px = None if ankle is None else (float(ankle[0]), float(ankle[1]))
+    return PersonIn(
+        shoulder_px=shoulder_px,
+        ankle_px=ankle_px,
+        unusable_reason=evidence_problem(shoulder_px, ankle_px, image_size_px),
+    )
+
+
+def _same_pose(a: PersonIn, b: PersonIn) -> bool:
+    """Whether two detections' keypoints describe one pose (see the module docstring)."""
+    if a.keypoints is None or b.keypoints is None or a.box_px is None or b.box_px is None:
+        return False
+    ka, kb = np.asarray(a.keypoints, dtype=float), np.asarray(b.keypoints, dtype=float)
+    shared = (ka[:, 2] >= MIN_SCORE) & (kb[:, 2] >= MIN_SCORE)
+    if shared.sum() < MIN_SHARED_KEYPOINTS:
+        return False
+    gap_px = float(np.median(np.hypot(*(ka[shared, :2] - kb[shared, :2]).T)))
+    scale_px = max(a.box_px[3] - a.box_px[1], b.box_px[3] - b.box_px[1])
+    return gap_px < DUPLICATE_POSE_FRACTION * scale_px
+
+
+def people_from_detections(found: Sequence[DetectedPerson], image_size_px: tuple[int, int]) -> list[PersonIn]:
+    """A frame's people as the store's rows: each person's verdict, and repeated poses dropped (module docstring).
+
+    `found` is in the pose estimator's order, most confident detection first, so a pose is compared with the
+    ones before it and the more confident detection keeps it.
+    """
+    people = [person_from_detection(person, image_size_px) for person in found]
+    repeats: set[int] = set()
+    for j, person in enumerate(people):
+        original = next((i for i in range(j) if i not in repeats and _same_pose(people[i], person)), None)
+        if original is None:
+            continue
+        repeats.add(j)
+        people[j] = replace(
+            person,
+            shoulder_px=None,
+            ankle_px=None,
+            unusable_reason=f"same pose as person {original} (a repeated detection, or a neighbour's pose)",
+        )
+    return people

@@ -1,0 +1,166 @@
+"""Image frames over HTTP: accepted as raw JPEG/PNG bodies or multipart forms, refused with a clear 4xx otherwise."""
+
+from __future__ import annotations
+
+import struct
+import uuid
+import zlib
+
+import pytest
+from fastapi import FastAPI
+from fastapi.testclient import TestClient
+
+from service.frames.repository import frame_image
+from tests.support.app import HEIGHT_PX, WIDTH_PX, assert_problem, encoded
+from tests.support.dispatch import RecordingDispatcher
+
+
+@pytest.fixture(scope="module")
+def jpeg() -> bytes:
+    return encoded(".jpg")
+
+
+@pytest.fixture(scope="module")
+def png() -> bytes:
+    return encoded(".png")
+
+
+def png_header_only(width: int, height: int) -> bytes:
+    """A PNG that claims a huge size in its header: what a decompression bomb looks like before decoding."""
+    ihdr = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
+    chunk = struct.pack(">I", len(ihdr)) + b"IHDR" + ihdr + struct.pack(">I", zlib.crc32(b"IHDR" + ihdr))
+    return b"\x89PNG\r\n\x1a\n" + chunk + b"\x00" * 64
+
+
+def test_raw_jpeg_is_stored_detecting_and_dispatched(
+    client: TestClient, camera: str, jpeg: bytes, dispatcher: RecordingDispatcher, app: FastAPI
+) -> None:
+    response = client.post(
+        f"/v1/cameras/{camera}/frames?timestamp=2026-01-01T12:00:00Z&frame_id=img-1",
+        content=jpeg,
+        headers={"Content-Type": "image/jpeg"},
+    )
+    assert response.status_code == 202, response.text
+    body = response.json()
+    assert (body["status"], body["people"], body["created"], body["client_frame_id"]) == ("detecting", 0, True, "img-1")
+    frame_id = uuid.UUID(body["frame_id"])
+    assert dispatcher.images == [(camera, frame_id)] and dispatcher.frames == []
+    frame = client.get(body["url"]).json()
+    assert (frame["source"], frame["status"], frame["image_kept"], frame["detections"]) == (
+        "image",
+        "detecting",
+        True,
+        None,
+    )
+    assert frame["timestamp"].startswith("2026-01-01T12:00:00")
+    with app.state.session_factory() as session:
+        image = frame_image(session, frame_id)
+        assert image is not None and image.data == jpeg and image.content_type == "image/jpeg"
+        assert (image.width_px, image.height_px) == (WIDTH_PX, HEIGHT_PX)
+    retry = client.post(
+        f"/v1/cameras/{camera}/frames?frame_id=img-1", content=jpeg, headers={"Content-Type": "image/jpeg"}
+    )
+    assert retry.status_code == 200 and retry.json()["frame_id"] == body["frame_id"]
+
+
+def test_multipart_png_with_form_fields(client: TestClient, camera: str, png: bytes) -> None:
+    response = client.post(
+        f"/v1/cameras/{camera}/frames",
+        files={"image": ("frame.png", png, "image/png")},
+        data={"timestamp": "2026-03-04T05:06:07+01:00", "frame_id": "form-1"},
+    )
+    assert response.status_code == 202, response.text
+    frame = client.get(response.json()["url"]).json()
+    assert frame["client_frame_id"] == "form-1"
+    assert frame["timestamp"].startswith("2026-03-04T04:06:07")
+
+
+@pytest.mark.parametrize(
+    ("mutate", "status", "fragment"),
+    [
+        (lambda data: data[: len(data) // 2], 422, "truncated"),
+        (lambda data: data[:40], 422, "truncated"),
+        (lambda data: data[:3] + b"\x00" * 200, 422, "corrupt"),
+    ],
+    ids=["half", "header-only", "garbage-after-magic"],
+)
+def test_broken_jpegs_are_422(client: TestClient, camera: str, jpeg: bytes, mutate, status: int, fragment: str) -> None:  # type: ignore[no-untyped-def]
+    response = client.post(f"/v1/cameras/{camera}/frames", content=mutate(jpeg), headers={"Content-Type": "image/jpeg"})
+    assert_problem(response, status, fragment)
+
+
+def test_truncated_png_is_422(client: TestClient, camera: str, png: bytes) -> None:
+    response = client.post(f"/v1/cameras/{camera}/frames", content=png[:-200], headers={"Content-Type": "image/png"})
+    assert_problem(response, 422, "truncated png")
+
+
+def test_decompression_bomb_is_refused_before_decoding(client: TestClient, camera: str) -> None:
+    response = client.post(
+        f"/v1/cameras/{camera}/frames", content=png_header_only(100_000, 100_000), headers={"Content-Type": "image/png"}
+    )
+    assert_problem(response, 413, "100000x100000", "max_image_pixels")
+
+
+def test_image_of_another_size_is_422(client: TestClient, camera: str) -> None:
+    response = client.post(
+        f"/v1/cameras/{camera}/frames", content=encoded(".jpg", 640, 480), headers={"Content-Type": "image/jpeg"}
+    )
+    assert_problem(response, 422, "640x480", f"{WIDTH_PX}x{HEIGHT_PX}")
+
+
+@pytest.mark.parametrize(
+    ("content", "content_type", "status", "fragments"),
+    [
+        (b"", "image/jpeg", 422, ("empty",)),
+        (b"hello", "text/plain", 415, ("image/jpeg", "text/plain")),
+        (b"hello", "image/jpeg", 415, ("not a jpeg or png",)),
+        (b'{"people": []}', "application/json", 415, ("multipart/form-data",)),
+    ],
+    ids=["empty", "text", "text-labelled-jpeg", "json"],
+)
+def test_wrong_bodies_are_4xx(
+    client: TestClient, camera: str, content: bytes, content_type: str, status: int, fragments: tuple[str, ...]
+) -> None:
+    response = client.post(f"/v1/cameras/{camera}/frames", content=content, headers={"Content-Type": content_type})
+    assert_problem(response, status, *fragments)
+
+
+def test_mislabelled_image_is_415(client: TestClient, camera: str, jpeg: bytes) -> None:
+    response = client.post(f"/v1/cameras/{camera}/frames", content=jpeg, headers={"Content-Type": "image/png"})
+    assert_problem(response, 415, "declared image/png", "image/jpeg")
+
+
+def test_multipart_without_image_field_is_422(client: TestClient, camera: str, jpeg: bytes) -> None:
+    response = client.post(f"/v1/cameras/{camera}/frames", files={"picture": ("a.jpg", jpeg, "image/jpeg")})
+    assert_problem(response, 422, "`image`")
+
+
+def test_bad_query_fields_are_422(client: TestClient, camera: str, jpeg: bytes) -> None:
+    headers = {"Content-Type": "image/jpeg"}
+    assert_problem(client.post(f"/v1/cameras/{camera}/frames?timestamp=yesterday", content=jpeg, headers=headers), 422)
+    assert_problem(client.post(f"/v1/cameras/{camera}/frames?frame_id=a%20b", content=jpeg, headers=headers), 422)
+
+
+def test_oversize_image_is_413(client: TestClient, camera: str, app: FastAPI, jpeg: bytes) -> None:
+    limit = app.state.settings.max_image_bytes
+    response = client.post(
+        f"/v1/cameras/{camera}/frames",
+        content=b"\xff\xd8\xff" + b"\x00" * (limit + 70_000),
+        headers={"Content-Type": "image/jpeg"},
+    )
+    assert_problem(response, 413, "max_image_bytes")
+
+
+def test_unknown_camera_is_404(client: TestClient, jpeg: bytes) -> None:
+    response = client.post("/v1/cameras/nope/frames", content=jpeg, headers={"Content-Type": "image/jpeg"})
+    assert_problem(response, 404, "nope")
+
+
+def test_queue_down_is_503_and_the_image_is_kept(
+    client: TestClient, camera: str, jpeg: bytes, dispatcher: RecordingDispatcher, app: FastAPI
+) -> None:
+    dispatcher.fail = True
+    response = client.post(f"/v1/cameras/{camera}/frames", content=jpeg, headers={"Content-Type": "image/jpeg"})
+    body = assert_problem(response, 503, "stored")
+    with app.state.session_factory() as session:
+        assert frame_image(session, uuid.UUID(body["frame_id"])) is not None

@@ -1,0 +1,144 @@
+"""The pose job on real frames with the real ONNX models: people stored once, images dropped unless kept."""
+
+from __future__ import annotations
+
+import uuid
+from pathlib import Path
+
+import numpy as np
+import pytest
+import redis
+from rq import Queue
+from sqlalchemy.orm import Session, sessionmaker
+
+from service.calibration.repository import current_calibration
+from service.cameras.repository import get_camera
+from service.domain import DONE, FAILED, GONE, SKIPPED
+from service.frames.repository import frame_image
+from service.queue import CALIBRATION_QUEUE, FRAMES_QUEUE, POSE_QUEUE, RedisDispatcher
+from service.settings import get_settings
+from service.store import Frame, Observation
+from tests.support.jobs import run_jobs, store_image
+from tests.support.shared import TOWN_CENTRE, model_dir_path, require_dir
+from workers import jobs
+from workers.main import requeue_pending
+
+CAMERA = "town"
+
+
+@pytest.fixture(scope="module")
+def town_jpeg() -> bytes:
+    require_dir(model_dir_path(), "pose model")
+    return (require_dir(TOWN_CENTRE, "Town Centre data") / "frames" / "clip_000000.jpg").read_bytes()
+
+
+def test_pose_job_stores_people_once_and_drops_the_image(
+    sessions: sessionmaker[Session], redis_dispatcher: RedisDispatcher, connection: redis.Redis, town_jpeg: bytes
+) -> None:
+    frame_id = store_image(sessions, town_jpeg)
+    redis_dispatcher.image_stored(CAMERA, frame_id)
+    redis_dispatcher.image_stored(CAMERA, frame_id)
+    assert Queue(POSE_QUEUE, connection=connection).get_job_ids() == [f"pose-{frame_id}"]  # queued once
+    assert jobs.detect_people(str(frame_id)) == DONE
+    assert jobs.detect_people(str(frame_id)) == SKIPPED  # a duplicate run stores nothing more
+    with sessions() as session:
+        frame = session.get(Frame, frame_id)
+        assert frame is not None and frame.status == "pending" and frame.pose_model.startswith("rtmdet-nano")
+        people = session.query(Observation).filter_by(frame_id=frame_id).order_by(Observation.person_index).all()
+        assert frame.people == len(people) >= 10  # about 13-17 pedestrians in this frame
+        usable = [p for p in people if p.usable]
+        assert len(usable) >= 6
+        for person in people:
+            left, top, right, bottom = person.box_px
+            assert 0 <= left < right <= 1920 and 0 <= top < bottom <= 1080
+            assert 0.3 <= person.detection_score <= 1.0
+            assert person.keypoints is not None and len(person.keypoints) == 17
+        for person in usable:  # upright: ankles below shoulders, inside the box (with margin)
+            assert person.ankle_y_px > person.shoulder_y_px
+            assert person.box_px[1] - 20 <= person.shoulder_y_px and person.ankle_y_px <= person.box_px[3] + 20
+        camera = get_camera(session, CAMERA)
+        assert camera is not None and camera.usable_evidence_count == len(usable)
+        assert frame_image(session, frame_id) is None  # privacy: the picture is gone once its people are stored
+    assert Queue(FRAMES_QUEUE, connection=connection).count == 1  # measuring was requested
+
+
+def test_kept_images_stay(sessions: sessionmaker[Session], redis_dispatcher: RedisDispatcher, town_jpeg: bytes) -> None:
+    frame_id = store_image(sessions, town_jpeg, keep_images=True)
+    assert jobs.detect_people(str(frame_id)) == DONE
+    with sessions() as session:
+        assert frame_image(session, frame_id) is not None
+
+
+def test_missing_models_fail_the_frame_with_the_fix(
+    sessions: sessionmaker[Session],
+    redis_dispatcher: RedisDispatcher,
+    town_jpeg: bytes,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    frame_id = store_image(sessions, town_jpeg)
+    monkeypatch.setenv("POSEMETRY_MODEL_DIR", str(tmp_path / "no-models"))
+    get_settings.cache_clear()
+    assert jobs.detect_people(str(frame_id)) == FAILED
+    with sessions() as session:
+        frame = session.get(Frame, frame_id)
+        assert frame is not None and frame.status == "failed"
+        assert "rtmdet_nano_person_320.onnx" in frame.error and "posemetry models fetch" in frame.error
+
+
+def test_an_image_corrupted_in_storage_fails_only_its_frame(
+    sessions: sessionmaker[Session], redis_dispatcher: RedisDispatcher, town_jpeg: bytes
+) -> None:
+    good = store_image(sessions, town_jpeg)
+    with sessions() as session, session.begin():
+        image = frame_image(session, good)
+        assert image is not None
+        image.data = town_jpeg[:4] + b"\x00" * 500 + b"\xff\xd9"  # what a damaged disk page might leave
+    assert jobs.detect_people(str(good)) == FAILED
+    assert _status(sessions, good) == "failed"
+    assert jobs.detect_people(str(uuid.uuid4())) == GONE
+
+
+def _status(sessions: sessionmaker[Session], frame_id: uuid.UUID) -> str:
+    with sessions() as session:
+        frame = session.get(Frame, frame_id)
+        assert frame is not None
+        return frame.status
+
+
+def test_worker_start_requeues_images_still_detecting(
+    sessions: sessionmaker[Session], redis_dispatcher: RedisDispatcher, connection: redis.Redis, town_jpeg: bytes
+) -> None:
+    frame_id = store_image(sessions, town_jpeg)  # stored while Redis was "down": never dispatched
+    requeued = requeue_pending(get_settings(), redis_dispatcher)
+    assert requeued.images == 1
+    assert requeue_pending(get_settings(), redis_dispatcher).images == 0
+    run_jobs(connection)
+    assert _status(sessions, frame_id) == "pending"  # people found; waiting for a calibration
+
+
+def test_town_centre_calibrates_from_its_own_pedestrians(
+    sessions: sessionmaker[Session], redis_dispatcher: RedisDispatcher, connection: redis.Redis, town_jpeg: bytes
+) -> None:
+    """The real camera, end to end in the workers: 22 street frames, pose, evidence, a solve, the published truth.
+
+    Oxford Town Centre's published calibration has fx = fy = 2696 px; its ground plane comes from the published
+    rotation and translation (tests/pose/towncentre.py). Measured here: fx 2735 px (+1.4 %, 1-sigma 68 px) and the
+    normal 1.8 degrees off, from 150 people; the issue's bounds (10 %, 3 degrees) are asserted.
+    """
+    from tests.pose.towncentre import load_calibration
+
+    truth = load_calibration(TOWN_CENTRE / "TownCentre-calibration-ci.txt")
+    for path in sorted((TOWN_CENTRE / "frames").glob("clip_*.jpg")):
+        redis_dispatcher.image_stored(CAMERA, store_image(sessions, path.read_bytes()))
+    run_jobs(connection)
+    redis_dispatcher.request(CALIBRATION_QUEUE, CAMERA, forced=True)  # one last solve on all the evidence
+    run_jobs(connection)
+    with sessions() as session:
+        calibration = current_calibration(session, CAMERA)
+        statuses = {status for (status,) in session.query(Frame.status)}
+    assert calibration is not None and calibration.people_used >= 100
+    assert abs(calibration.fx_px / truth.fx - 1) < 0.10
+    normal = np.array([calibration.normal_x, calibration.normal_y, calibration.normal_z])
+    assert np.degrees(np.arccos(np.clip(normal @ truth.ground_normal, -1, 1))) < 3.0
+    assert statuses == {"done"}  # every frame measured with it
