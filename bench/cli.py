@@ -202,7 +202,8 @@ def bench_load(
 ) -> None:
     """Mixed load on `posemetry serve`: keypoint cameras, image cameras, dashboards, distance queries, webhooks."""
     from bench.frames import PAYLOADS
-    from bench.load import LoadOptions, run_load
+    from bench.load import run_load
+    from bench.load_options import LoadOptions
     from bench.load_report import footer, header, tables
 
     if payload not in PAYLOADS:

@@ -8,7 +8,7 @@ import sys
 
 import numpy as np
 
-from .load import GET_FRAME, KINDS, POST_KEYPOINTS, TARGET_FRAMES_PER_S, TARGET_P99_MS, LoadResult
+from .load_options import GET_FRAME, KINDS, POST_KEYPOINTS, TARGET_FRAMES_PER_S, TARGET_P99_MS, LoadResult
 from .load_stats import CLIENT, OTHER, percentile_ms
 from .profile import SAMPLE_RATE_HZ
 from .report import ReportTable, fmt, yes_no

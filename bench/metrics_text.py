@@ -34,3 +34,10 @@ def delta_by(
         key = labels.get(label, "")
         totals[key] = totals.get(key, 0.0) + value - before
     return totals
+
+
+def jobs_by_queue(start: dict[MetricSample, float], end: dict[MetricSample, float]) -> dict[str, tuple[int, float]]:
+    """Jobs finished per queue in the window, and their wall time, from the job-duration histogram's deltas."""
+    counts = delta_by(start, end, "posemetry_job_duration_seconds_count", "queue")
+    sums = delta_by(start, end, "posemetry_job_duration_seconds_sum", "queue")
+    return {queue: (round(counts[queue]), sums.get(queue, 0.0)) for queue in counts}
