@@ -10,7 +10,8 @@ benchmarks stay beside the product and the service never imports them.
 
 from __future__ import annotations
 
-from importlib.metadata import entry_points
+from collections.abc import Iterable
+from importlib.metadata import EntryPoint, entry_points
 
 import typer
 
@@ -50,5 +51,23 @@ app.command("openapi")(openapi.openapi)
 app.add_typer(db.db_app, name="db")
 app.add_typer(keys.keys_app, name="keys")
 app.add_typer(models_app, name="models")
-for _entry in sorted(entry_points(group=ENTRY_POINT_GROUP), key=lambda entry: entry.name):
-    app.add_typer(_entry.load(), name=_entry.name)
+
+
+def add_command_groups(app: typer.Typer, entries: Iterable[EntryPoint]) -> list[str]:
+    """Add the command groups other packages register; returns their names. A group whose package is not
+    installed here is left out (the Docker image carries the service, not the benchmarks), but one that fails to
+    import for another reason is an error."""
+    added = []
+    for entry in sorted(entries, key=lambda entry: entry.name):
+        try:
+            group = entry.load()
+        except ModuleNotFoundError as exc:
+            if exc.name != entry.module.split(".")[0]:
+                raise
+            continue
+        app.add_typer(group, name=entry.name)
+        added.append(entry.name)
+    return added
+
+
+add_command_groups(app, entry_points(group=ENTRY_POINT_GROUP))

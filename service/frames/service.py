@@ -13,9 +13,9 @@ from typing import TYPE_CHECKING, Any
 
 from service.calibration.repository import current_calibration
 from service.calibration.service import calibration_due, calibration_from_version
-from service.domain import DONE, GONE, PENDING, FrameOutcome, PersonIn
+from service.domain import DONE, GONE, PENDING, FrameOutcome, PersonIn, StoredCentres
 from service.frames.keypoints import person_from_centres, person_from_keypoints
-from service.frames.measure import FrameComputation, StoredCentres, measure_people
+from service.frames.measure import FrameComputation, measure_people
 from service.frames.repository import frames_points, pending_frames, record_frame_outcomes
 from service.frames.schemas import PersonObservation
 from service.http.problems import ProblemError, field_errors
