@@ -10,7 +10,7 @@ import uuid
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime, timedelta
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any, cast
 
 from sqlalchemy import Table, and_, delete, exists, insert, or_, select, update
 from sqlalchemy.exc import IntegrityError
@@ -26,7 +26,9 @@ from service.store.webhook_models import (
 )
 
 from .cooldown import AlertedPair, Cooldown
-from .delivery import AttemptResult, Decision
+
+if TYPE_CHECKING:
+    from .delivery import AttemptResult, Decision
 
 _DELIVERIES = cast(Table, WebhookDelivery.__table__)
 _COOLDOWNS = cast(Table, ViolationCooldown.__table__)
