@@ -77,12 +77,6 @@ def run(command: list[str], *, env: dict[str, str] | None = None, timeout_s: flo
     return done.stdout
 
 
-def container_log(container: str) -> str:
-    """stdout and stderr of a container (the service logs JSON lines to stderr)."""
-    done = subprocess.run(["docker", "logs", container], capture_output=True, text=True, timeout=60, check=False)
-    return done.stdout + done.stderr
-
-
 def ensure_base_images() -> str:
     """Images under the names the Dockerfile and the Compose file use (stand-ins where none can be pulled); returns
     the PostgreSQL image to run."""
