@@ -31,7 +31,7 @@ rebuild=0
 
 say() { echo "standins: $*" >&2; }
 
-# One run at a time: .ci/run starts one in the background, and the Compose test's own waits for it here.
+# One run at a time on a machine: a second one waits here, then finds the images built.
 exec 9>"${TMPDIR:-/tmp}/posemetry-standins.lock"
 flock 9
 
