@@ -24,7 +24,7 @@ from typing import Any
 
 import pytest
 
-from tests.serving import REPO
+from tests.support.serving import REPO
 
 REQUIRE_DOCKER_ENV = "POSEMETRY_TESTS_REQUIRE_DOCKER"
 STANDINS = Path(__file__).resolve().parent / "standins" / "build.sh"

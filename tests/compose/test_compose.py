@@ -20,7 +20,6 @@ import pytest
 
 from bench.simulate import SceneConfig, draw_scene
 from service.store.migrate import head_revision
-from tests.api.conftest import coco_person
 from tests.compose.stack import (
     DEADLINE_S,
     Answer,
@@ -32,8 +31,9 @@ from tests.compose.stack import (
     run,
     wait_until,
 )
-from tests.serving import free_port
-from tests.shared import SHARED_MODELS, TOWN_CENTRE, model_dir_path, require_dir
+from tests.support.app import coco_person
+from tests.support.serving import free_port
+from tests.support.shared import SHARED_MODELS, TOWN_CENTRE, model_dir_path, require_dir
 
 PROJECT = "posemetry-compose-test"
 FRAMES = 12  # keypoint frames of PEOPLE people: 120 people, four solves (at 30, 45, 68 and 102)
