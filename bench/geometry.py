@@ -2,7 +2,7 @@
 
 Only the public API (calibrate, CalibrationError) and the simulator are used,
 so the numbers describe what a caller gets. A method is a named set of
-calibrate() keyword arguments (METHODS): add a variant there and name it in an
+CalibrationProblem and SolveOptions fields (METHODS): add a variant there and name it in an
 experiment's method list to benchmark it.
 
 Every trial seeds its scene from (seed, experiment name, trial index) alone,
@@ -21,7 +21,7 @@ import warnings
 import zlib
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Executor, ProcessPoolExecutor
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from datetime import UTC, datetime
 from typing import Any, Final
 
@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from bench.simulate import Scene, SceneConfig, draw_scene
-from service.geometry import Calibration, CalibrationError, calibrate
+from service.geometry import Calibration, CalibrationError, CalibrationProblem, SolveOptions, calibrate
 
 from . import paper
 from .paper_literal import calibrate_paper_literal
@@ -37,8 +37,9 @@ from .report import ReportTable, fmt, fmt_pair, yes_no
 
 FloatArray = NDArray[np.float64]
 
-# Named calibrate() keyword arguments. Experiments add height, equal_focal and
-# seed from their scene; a method's own entries take precedence.
+# Named CalibrationProblem and SolveOptions fields (split by name). Experiments add the image size, the
+# height prior, equal_focal and the seed from their scene; a method's own entries take precedence.
+# "solver": "paper-literal" runs the paper's printed solver instead of calibrate().
 METHODS: dict[str, dict[str, Any]] = {
     "linear": {"robust": False, "refine": False, "uncertainty": False},
     "robust": {"robust": True, "refine": False, "uncertainty": False},
@@ -215,15 +216,28 @@ def without_outliers(scene: Scene) -> Scene:
     )
 
 
+def problem_and_options(
+    image_size: tuple[float, float], height_m: float, equal_focal: bool, method: Mapping[str, Any], seed: int
+) -> tuple[CalibrationProblem, SolveOptions]:
+    """A method's entries split into the problem's and the options' fields; TypeError for any other name."""
+    problem_fields = {f.name for f in fields(CalibrationProblem)}
+    problem: dict[str, Any] = {"image_size_px": image_size, "height_m": height_m, "equal_focal": equal_focal}
+    options: dict[str, Any] = {"seed": seed}
+    for key, value in method.items():
+        (problem if key in problem_fields else options)[key] = value
+    return CalibrationProblem(**problem), SolveOptions(**options)
+
+
 def run_method(scene: Scene, setting: Setting, method: Mapping[str, Any], seed: int) -> TrialResult:
-    kwargs = {"height": setting.config.height_mean_m, "equal_focal": setting.equal_focal, "seed": seed, **method}
+    height_m = setting.config.height_mean_m
     try:
-        if kwargs.pop("solver", None) == "paper-literal":
+        if method.get("solver") == "paper-literal":
             cal = calibrate_paper_literal(
-                scene.tops_px, scene.bottoms_px, scene.image_size, kwargs["height"], kwargs["equal_focal"]
+                scene.tops_px, scene.bottoms_px, scene.image_size, height_m, setting.equal_focal
             )
         else:
-            cal = calibrate(scene.tops_px, scene.bottoms_px, scene.image_size, **kwargs)
+            problem, options = problem_and_options(scene.image_size, height_m, setting.equal_focal, method, seed)
+            cal = calibrate(scene.tops_px, scene.bottoms_px, problem, options)
     except CalibrationError as exc:
         return TrialResult.failure(str(exc))
     except Exception as exc:  # a worker must not die: one bug would lose every other trial's result
@@ -607,7 +621,7 @@ def _distortion(ctx: _Context) -> list[ReportTable]:
         table.end_section()
     table.notes.append(
         f"{min(ctx.options.trials, DISTORTION_MAX_TRIALS)} trials per setting (the k search is the slowest step). "
-        "Mean (median). 'distortion' = calibrate(distortion=True): a one-parameter division model fitted to a "
+        "Mean (median). 'distortion' = SolveOptions(distortion=True): a one-parameter division model fitted to a "
         "different (polynomial) lens, kept at k = 0 unless significant."
     )
     return [table]
@@ -624,12 +638,13 @@ def _timing(ctx: _Context) -> list[ReportTable]:
     for method, n in TIMING_CASES:
         config = SceneConfig.paper(noise_px=0.5, height_std_m=0.1, n_people=n)
         scene = draw_scene(config, np.random.default_rng(np.random.SeedSequence(ctx.options.seed, spawn_key=(salt, n))))
-        kwargs = {"height": config.height_mean_m, "equal_focal": False, "seed": 0, **METHODS[method]}
+        problem, solve_options = problem_and_options(scene.image_size, config.height_mean_m, False, METHODS[method], 0)
         target = TIMING_TARGETS_MS.get((method, n))
         target_cell = f"<= {target:g}" if target is not None else "-"
         try:
             times_ms = _time_calls(
-                lambda kw=kwargs, s=scene: calibrate(s.tops_px, s.bottoms_px, s.image_size, **kw), ctx.options.repeats
+                lambda p=problem, o=solve_options, s=scene: calibrate(s.tops_px, s.bottoms_px, p, o),
+                ctx.options.repeats,
             )
         except CalibrationError as exc:
             table.add_row(method, str(n), "failed", "-", target_cell, yes_no(False if target else None))

@@ -14,9 +14,11 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.stats import truncnorm
 
-from service.geometry.frame import FloatArray
+from service.geometry.camera import project
+from service.geometry.vec import FloatArray
 
 OUTLIER_KINDS = ("sitting", "bending", "stairs", "bad_detection")
+__all__ = ["OUTLIER_KINDS", "Scene", "SceneConfig", "camera_normal", "draw_scene", "project", "sample_heights"]
 
 
 @dataclass(frozen=True)
@@ -87,19 +89,6 @@ def camera_normal(pitch_deg: float, roll_deg: float) -> FloatArray:
     level = np.array([0.0, -np.cos(p), -np.sin(p)])
     rot = np.array([[np.cos(r), -np.sin(r), 0.0], [np.sin(r), np.cos(r), 0.0], [0.0, 0.0, 1.0]])
     return rot @ level
-
-
-def project(
-    points: FloatArray, fx: float, fy: float, cx: float, cy: float, k: tuple[float, float] = (0.0, 0.0)
-) -> FloatArray:
-    """Pinhole projection to pixels, with OpenCV-style radial distortion when k != 0."""
-    xn = points[..., 0] / points[..., 2]
-    yn = points[..., 1] / points[..., 2]
-    if k != (0.0, 0.0):
-        r2 = xn * xn + yn * yn
-        factor = 1.0 + k[0] * r2 + k[1] * r2 * r2
-        xn, yn = xn * factor, yn * factor
-    return np.stack((fx * xn + cx, fy * yn + cy), -1)
 
 
 def _distortion_monotonic(points: FloatArray, k: tuple[float, float]) -> FloatArray:

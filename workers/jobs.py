@@ -403,6 +403,7 @@ def key_camera_evidence(settings: Settings, camera_id: str) -> int:
 
 
 def _solve(settings: Settings, dispatcher: RedisDispatcher, camera_id: str, *, forced: bool) -> str:
+    from service.geometry import CalibrationProblem
     from service.geometry.evidence import solve_evidence
 
     with read_session_factory(settings)() as session:
@@ -427,9 +428,8 @@ def _solve(settings: Settings, dispatcher: RedisDispatcher, camera_id: str, *, f
 
     started = time.perf_counter()
     # The sample is already capped and balanced by the store; repeats (still people, a mannequin) count once.
-    solve = solve_evidence(
-        sample.tops_px, sample.bottoms_px, image_size, height_m, equal_focal=equal_focal, focal_px=known_focal_px
-    )
+    problem = CalibrationProblem(image_size, height_m, equal_focal=equal_focal, focal_px=known_focal_px)
+    solve = solve_evidence(sample.tops_px, sample.bottoms_px, problem)
     people_used = solve.people_used
     duration_s = time.perf_counter() - started
     if solve.calibration is not None:

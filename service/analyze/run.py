@@ -22,7 +22,7 @@ from typing import Literal, Protocol
 
 import numpy as np
 
-from service.geometry import Calibration
+from service.geometry import Calibration, CalibrationProblem, SolveOptions
 from service.geometry.evidence import EvidenceSolve, solve_evidence
 from service.keypoints import people_from_detections
 from service.pose.types import PoseEstimator
@@ -174,14 +174,14 @@ def calibrate_frames(
 ) -> tuple[Evidence, EvidenceSolve]:
     """One solve on the usable people of every frame."""
     evidence = Evidence.of(frames)
+    problem = CalibrationProblem(
+        image_size_px, options.height_m, equal_focal=options.equal_focal, focal_px=options.focal_px
+    )
     solve = solve_evidence(
         evidence.tops_px,
         evidence.bottoms_px,
-        image_size_px,
-        options.height_m,
-        equal_focal=options.equal_focal,
-        focal_px=options.focal_px,
-        distortion=options.distortion,
+        problem,
+        SolveOptions(distortion=options.distortion),
         cap=options.sample_cap,
     )
     return evidence, solve

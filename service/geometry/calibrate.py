@@ -8,15 +8,18 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .calibration import Calibration
-from .distortion import estimate_division_k, undistort
+from .camera import ImageFrame, rays, undistort
+from .consensus import ConsensusSettings, find_consensus, vanishing_points
+from .distortion import estimate_division_k
 from .errors import CalibrationError
-from .frame import FloatArray, ImageFrame, homogeneous
 from .linear import LinearSolution, sampson_distances, solve_linear
-from .priors import DEFAULT_HEIGHT_M, DEFAULT_HEIGHT_STD_M
-from .ransac import RansacSettings, minimal_size, ransac
-from .reconstruct import intersect_plane, place_people, rays
+from .minimal import minimal_size
+from .problem import CalibrationProblem, SolveOptions
+from .ransac import RansacOptions
+from .reconstruct import intersect_plane, place_people
 from .refine import Refinement, fit_camera
 from .uncertainty import canonical_covariance, summarise
+from .vec import FloatArray, homogeneous
 
 # Floor of the keypoint noise estimate, as a fraction of the image diagonal
 # (0.04 px at 1080p). No pose model is better than this; it keeps the
@@ -45,7 +48,7 @@ def _as_points(name: str, values: ArrayLike) -> FloatArray:
 
 
 def validate_keypoints(
-    tops: ArrayLike, bottoms: ArrayLike, image_size: tuple[float, float], height: float
+    tops: ArrayLike, bottoms: ArrayLike, image_size: tuple[float, float]
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Checked float arrays and a mask of people with a usable (non-zero-length) segment.
 
@@ -56,14 +59,7 @@ def validate_keypoints(
     tops_px, bottoms_px = _as_points("tops", tops), _as_points("bottoms", bottoms)
     if tops_px.shape != bottoms_px.shape:
         raise CalibrationError(f"tops and bottoms differ in shape: {tops_px.shape} vs {bottoms_px.shape}")
-    if not (np.isfinite(height) and height > 0):
-        raise CalibrationError(f"height must be a positive number of metres, got {height!r}")
-    try:
-        width, img_h = float(image_size[0]), float(image_size[1])
-    except (TypeError, ValueError, IndexError):
-        raise CalibrationError(f"image_size must be (width, height), got {image_size!r}") from None
-    if not (np.isfinite(width) and np.isfinite(img_h) and width > 0 and img_h > 0):
-        raise CalibrationError(f"image_size must be two positive numbers, got {image_size!r}")
+    width, img_h = float(image_size[0]), float(image_size[1])
     for name, arr in (("tops", tops_px), ("bottoms", bottoms_px)):
         bad = ~np.all(np.isfinite(arr), axis=1)
         if bad.any():
@@ -80,53 +76,28 @@ def validate_keypoints(
 
 
 def calibrate(
-    tops: ArrayLike,
-    bottoms: ArrayLike,
-    image_size: tuple[float, float],
-    height: float = DEFAULT_HEIGHT_M,
-    *,
-    equal_focal: bool = True,
-    robust: bool | None = None,
-    refine: bool | None = None,
-    seed: int | None = 0,
-    principal_point: tuple[float, float] | None = None,
-    focal_px: float | tuple[float, float] | None = None,
-    inlier_px: float | None = None,
-    height_tolerance: float = 0.2,
-    max_iterations: int = 5000,
-    height_std: float = DEFAULT_HEIGHT_STD_M,
-    uncertainty: bool = True,
-    distortion: bool = False,
+    tops: ArrayLike, bottoms: ArrayLike, problem: CalibrationProblem, options: SolveOptions | None = None
 ) -> Calibration:
-    """Calibrate a camera from people's shoulder-centre (tops) and ankle-centre (bottoms) pixels.
-
-    height is the ankle-centre-to-shoulder-centre height prior in metres. With
-    robust/refine left as None, the most accurate pipeline is used (RANSAC, then
-    the maximum-likelihood refinement). uncertainty=False skips the covariance
-    (only useful when nothing but the point estimate is wanted, fast).
-    distortion=True also estimates one-parameter division-model lens
-    distortion (Appendix B); it is kept at 0 unless the data call for it.
-    """
-    tops_px, bottoms_px, usable = validate_keypoints(tops, bottoms, image_size, height)
-    frame = ImageFrame.from_size(image_size, principal_point)
+    """Calibrate a camera from people's shoulder-centre (tops) and ankle-centre (bottoms) pixels."""
+    options = SolveOptions() if options is None else options
+    tops_px, bottoms_px, usable = validate_keypoints(tops, bottoms, problem.image_size_px)
+    height, height_std, equal_focal = problem.height_m, problem.height_std_m, problem.equal_focal
+    frame = ImageFrame.from_size(problem.image_size_px, problem.principal_point_px)
     tops_n, bottoms_n = frame.normalise(tops_px), frame.normalise(bottoms_px)
-    focal_n = None
-    if focal_px is not None:
-        f = np.broadcast_to(np.asarray(focal_px, dtype=np.float64), (2,))
-        if not (np.all(np.isfinite(f)) and np.all(f > 0)):
-            raise CalibrationError(f"focal_px must be positive, got {focal_px!r}")
-        focal_n = (float(f[0]) / frame.scale_px, float(f[1]) / frame.scale_px)
-    settings = RansacSettings(
-        inlier_px=default_inlier_px(image_size) if inlier_px is None else inlier_px,
-        height_tolerance=height_tolerance,
-        max_iterations=max_iterations,
+    known = problem.known_focal_px
+    focal_n = None if known is None else (known[0] / frame.scale_px, known[1] / frame.scale_px)
+    inlier_px = default_inlier_px(problem.image_size_px) if options.inlier_px is None else options.inlier_px
+    settings = ConsensusSettings(
+        inlier_px=inlier_px,
+        height_tolerance=options.height_tolerance,
+        ransac=RansacOptions(max_iterations=options.max_iterations),
     )
-    use_ransac = robust is None or robust
+    use_ransac = options.robust is None or options.robust
     inliers, solution, iterations = _consensus(
-        tops_n, bottoms_n, usable, height, equal_focal, focal_n, frame.scale_px, settings, use_ransac, seed
+        tops_n, bottoms_n, usable, height, equal_focal, focal_n, frame.scale_px, settings, use_ransac, options.seed
     )
     distortion_k = 0.0
-    if distortion:
+    if options.distortion:
         # k from the people the pinhole model already accepts (outliers would bend it),
         # then the whole pipeline again on undistorted points.
         distortion_k = estimate_division_k(tops_n[inliers], bottoms_n[inliers], height).k
@@ -134,13 +105,22 @@ def calibrate(
             tops_n, bottoms_n = undistort(tops_n, distortion_k), undistort(bottoms_n, distortion_k)
             usable &= np.all(np.isfinite(tops_n), axis=1) & np.all(np.isfinite(bottoms_n), axis=1)
             inliers, solution, iterations = _consensus(
-                tops_n, bottoms_n, usable, height, equal_focal, focal_n, frame.scale_px, settings, use_ransac, seed
+                tops_n,
+                bottoms_n,
+                usable,
+                height,
+                equal_focal,
+                focal_n,
+                frame.scale_px,
+                settings,
+                use_ransac,
+                options.seed,
             )
     if inliers.sum() < minimal_size(equal_focal, focal_n is not None):
         raise CalibrationError("too few people agree on one camera")
-    optimise = refine is None or refine
+    optimise = options.refine is None or options.refine
     fit = None
-    if optimise or uncertainty:
+    if optimise or options.uncertainty:
         noise_floor_n = MIN_NOISE_FRACTION * frame.diagonal_px / frame.scale_px
         noise_n = max(estimate_noise_n(tops_n[inliers], bottoms_n[inliers], solution), noise_floor_n)
         _, _, start_heights = place_people(
@@ -158,12 +138,12 @@ def calibrate(
             focal_n,
             optimise=optimise,
         )
-        if optimise and robust is not False:
+        if optimise and options.robust is not False:
             fit, inliers = _reject_misfits(fit, tops_n, bottoms_n, inliers, height, height_std, equal_focal, focal_n)
         solution = fit.solution
     cal = _finish(frame, tops_n, bottoms_n, inliers, solution, fit if optimise else None, height, iterations)
     cal = replace(cal, distortion_k=distortion_k)
-    if fit is not None and uncertainty:
+    if fit is not None and options.uncertainty:
         cov = canonical_covariance(fit.camera, fit.theta, fit.covariance, frame.scale_px)
         cal = replace(
             cal,
@@ -246,7 +226,7 @@ def _consensus(
     equal_focal: bool,
     focal_n: tuple[float, float] | None,
     scale_px: float,
-    settings: RansacSettings,
+    settings: ConsensusSettings,
     use_ransac: bool,
     seed: int | None,
 ) -> tuple[FloatArray, LinearSolution, int]:
@@ -254,7 +234,7 @@ def _consensus(
     inliers = usable.copy()
     if not use_ransac:
         return inliers, solve_linear(tops_n[usable], bottoms_n[usable], height, equal_focal, focal_n), 0
-    found = ransac(
+    found = find_consensus(
         tops_n[usable],
         bottoms_n[usable],
         height,
@@ -274,9 +254,7 @@ def estimate_noise_n(tops_n: FloatArray, bottoms_n: FloatArray, solution: Linear
     A Sampson distance is the noise projected on one direction, so its square is
     sigma^2 chi^2_1 distributed; the median (0.455 sigma^2) keeps stray outliers out.
     """
-    v = np.array(
-        [solution.normal[0] * solution.focal_n[0], solution.normal[1] * solution.focal_n[1], solution.normal[2]]
-    )
+    v = vanishing_points(np.asarray(solution.focal_n), solution.normal)
     d = sampson_distances(homogeneous(tops_n), homogeneous(bottoms_n), v)
     dof = max(len(d) - 2, 1)
     return float(np.sqrt(np.median(d * d) / 0.455 * len(d) / dof))

@@ -6,7 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .frame import FloatArray
+from .camera import Camera
+from .vec import FloatArray
 
 
 @dataclass(frozen=True)
@@ -45,15 +46,15 @@ class Calibration:
     inliers: FloatArray
     uncertainty: Uncertainty | None = None
     # Division model u = u_d / (1 + k |u_d|^2) on frame-normalised coordinates
-    # u = (x - c) / ((W + H) / 4); see service.geometry.distortion.
+    # u = (x - c) / ((W + H) / 4); see service.geometry.camera.
     distortion_k: float = 0.0
     refined: bool = False
     ransac_iterations: int = 0
     reprojection_rms_px: float = float("nan")
 
     @property
-    def K(self) -> FloatArray:  # noqa: N802 - the conventional name of the intrinsic matrix
-        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+    def camera(self) -> Camera:
+        return Camera(self.fx, self.fy, self.cx, self.cy, self.image_size, self.distortion_k)
 
     @property
     def num_inliers(self) -> int:

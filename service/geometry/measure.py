@@ -16,11 +16,11 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .calibration import Calibration
-from .frame import FloatArray
 from .priors import DEFAULT_HEIGHT_STD_M
 from .reconstruct import intersect_plane, pairwise_distances
 from .refine import tangent_basis
 from .uncertainty import canonical_camera
+from .vec import FloatArray
 
 # Finite-difference steps of the keypoint-noise and height-spread terms.
 _KEYPOINT_STEP_PX = 1e-4
@@ -58,7 +58,7 @@ class _Variants:
 def _positions(cal: Calibration, v: _Variants, from_ankles: FloatArray) -> FloatArray:
     """(K, N, 3) camera-frame ground points: the ankle ray meets the plane; without ankles, the shoulder ray
     meets the plane raised by the height prior and the point is lowered back onto the ground."""
-    chosen = undistort_px(cal, np.where(from_ankles[:, None], v.bottoms_px, v.tops_px))
+    chosen = cal.camera.undistort_px(np.where(from_ankles[:, None], v.bottoms_px, v.tops_px))
     ray = np.stack(
         (
             (chosen[..., 0] - cal.cx) / v.fx_px[:, None],
@@ -105,17 +105,6 @@ def _variants(cal: Calibration, tops_px: FloatArray, bottoms_px: FloatArray, wit
         tops_px=tops_px[None] + np.array(shifts)[:, None, :],
         bottoms_px=bottoms_px[None] + np.array(shifts)[:, None, :],
     )
-
-
-def undistort_px(cal: Calibration, points_px: FloatArray) -> FloatArray:
-    """Division-model undistortion around the principal point (identity when distortion_k == 0)."""
-    if cal.distortion_k == 0.0:
-        return points_px
-    from .distortion import undistort
-    from .frame import ImageFrame
-
-    frame = ImageFrame.from_size(cal.image_size, (cal.cx, cal.cy))
-    return frame.to_pixels(undistort(frame.normalise(points_px), cal.distortion_k))
 
 
 def measure(

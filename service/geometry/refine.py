@@ -24,11 +24,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from .frame import FloatArray
 from .linear import LinearSolution
-from .vec import cross
+from .vec import FloatArray, cross
 
-RESIDUALS_PER_PERSON = 5
 PARAMS_PER_PERSON = 3
 
 

@@ -15,8 +15,8 @@ from __future__ import annotations
 import numpy as np
 
 from .calibration import Uncertainty
-from .frame import FloatArray
 from .refine import CameraModel, tangent_basis
+from .vec import FloatArray
 
 CANONICAL_PARAMETERS = ("fx_px", "fy_px", "normal_t1_rad", "normal_t2_rad", "rho_m")
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from service.geometry.frame import FloatArray
+from service.geometry.vec import FloatArray
 
 from .ground import GroundFrame, clip_line_to_polygon
 

@@ -20,8 +20,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from service.geometry.calibration import Calibration
-from service.geometry.distortion import distort, undistort
-from service.geometry.frame import FloatArray
+from service.geometry.camera import distort, undistort
+from service.geometry.vec import FloatArray
 
 # Camera-frame points closer than this in depth are not projected (a ray at z ~ 0 lands at infinity).
 MIN_DEPTH_M = 1e-3
@@ -107,7 +107,7 @@ class GroundFrame:
     # ------------------------------------------------------------------ pixels
     @property
     def _scale_px(self) -> float:
-        """The distortion model's normalisation scale, (W + H) / 4 as in service.geometry.frame."""
+        """The distortion model's normalisation scale, (W + H) / 4 as in service.geometry.camera."""
         return (self.width_px + self.height_px) / 4.0
 
     def _distort_px(self, ideal_px: FloatArray) -> FloatArray:

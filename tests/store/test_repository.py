@@ -15,7 +15,7 @@ from sqlalchemy import Engine, func, select, text, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from service.geometry import DEFAULT_HEIGHT_M
+from service.geometry import DEFAULT_HEIGHT_M, CalibrationProblem
 from service.store import make_session_factory, repository
 from service.store.models import (
     GRID_CELLS,
@@ -538,7 +538,7 @@ def test_a_geometry_solution_round_trips_with_non_finite_values_as_null(session:
     from service.geometry import calibrate
 
     scene = draw_scene(replace(SceneConfig(), n_people=60, image_size=(800, 800)), np.random.default_rng(3))
-    solution = calibrate(scene.tops_px, scene.bottoms_px, image_size=(800, 800), height=1.7)
+    solution = calibrate(scene.tops_px, scene.bottoms_px, CalibrationProblem((800, 800), 1.7))
     assert solution.uncertainty is not None
     covariance = np.array(solution.uncertainty.covariance, dtype=float)
     covariance[0, 0] = np.nan
