@@ -127,23 +127,95 @@ def project(
 
 
 @dataclass(frozen=True)
+class OpenCVLens:
+    """OpenCV's lens model on focal-normalised coordinates (x, y) = ((u - cx) / fx, (v - cy) / fy):
+
+        x_d = x (1 + k1 r^2 + k2 r^4 + k3 r^6) + 2 p1 x y + p2 (r^2 + 2 x^2)
+        y_d = y (1 + k1 r^2 + k2 r^4 + k3 r^6) + p1 (r^2 + 2 y^2) + 2 p2 x y
+
+    the coefficients real calibrations publish (cv2.calibrateCamera's first five).
+    """
+
+    k1: float
+    k2: float
+    p1: float = 0.0
+    p2: float = 0.0
+    k3: float = 0.0
+
+    @classmethod
+    def from_coefficients(cls, coefficients: ArrayLike) -> OpenCVLens:
+        c = [float(v) for v in np.asarray(coefficients, dtype=np.float64).ravel()]
+        if len(c) not in (4, 5) or not all(np.isfinite(c)):
+            raise ValueError(f"OpenCV distortion needs 4 or 5 finite coefficients (k1, k2, p1, p2[, k3]), got {c}")
+        return cls(*c)
+
+    @property
+    def coefficients(self) -> tuple[float, float, float, float, float]:
+        return (self.k1, self.k2, self.p1, self.p2, self.k3)
+
+    def distort(self, xy: FloatArray) -> FloatArray:
+        x, y = xy[..., 0], xy[..., 1]
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
+        xd = x * radial + 2.0 * self.p1 * x * y + self.p2 * (r2 + 2.0 * x * x)
+        yd = y * radial + self.p1 * (r2 + 2.0 * y * y) + 2.0 * self.p2 * x * y
+        return np.stack((xd, yd), -1)
+
+    def undistort(self, xy_d: FloatArray, iterations: int = 30) -> FloatArray:
+        """Inverse of distort by Newton's method (the model has no closed-form inverse); NaN where it does not
+        converge (beyond the lens's monotone range)."""
+        xy_d = np.asarray(xy_d, dtype=np.float64)
+        xy = xy_d.copy()
+        for _ in range(iterations):
+            x, y = xy[..., 0], xy[..., 1]
+            r2 = x * x + y * y
+            radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3))
+            d_radial = self.k1 + r2 * (2.0 * self.k2 + 3.0 * r2 * self.k3)  # d radial / d r2
+            err = self.distort(xy) - xy_d
+            j00 = radial + 2.0 * x * x * d_radial + 2.0 * self.p1 * y + 6.0 * self.p2 * x
+            j01 = 2.0 * x * y * d_radial + 2.0 * self.p1 * x + 2.0 * self.p2 * y
+            j10 = 2.0 * x * y * d_radial + 2.0 * self.p1 * x + 2.0 * self.p2 * y
+            j11 = radial + 2.0 * y * y * d_radial + 6.0 * self.p1 * y + 2.0 * self.p2 * x
+            det = j00 * j11 - j01 * j10
+            with np.errstate(divide="ignore", invalid="ignore"):
+                dx = (j11 * err[..., 0] - j01 * err[..., 1]) / det
+                dy = (j00 * err[..., 1] - j10 * err[..., 0]) / det
+            xy = xy - np.stack((dx, dy), -1)
+        ok = np.all(np.abs(self.distort(xy) - xy_d) < 1e-9 * np.maximum(1.0, np.abs(xy_d)), axis=-1)
+        return np.where(ok[..., None], xy, np.nan)
+
+
+@dataclass(frozen=True)
 class Camera:
-    """A calibrated camera's intrinsics and lens: what turns pixels into rays and camera-frame points into pixels."""
+    """A calibrated camera's intrinsics and lens: what turns pixels into rays and camera-frame points into pixels.
+
+    The lens is OpenCV's model when the user gave its coefficients, or the division model when the
+    calibration estimated one (distortion_k, frame-normalised about the principal point); never both.
+    """
 
     fx_px: float
     fy_px: float
     cx_px: float
     cy_px: float
     image_size_px: tuple[float, float]
-    # Division model on frame-normalised coordinates (see the module docstring).
     distortion_k: float = 0.0
+    lens: OpenCVLens | None = None
 
     @property
     def frame(self) -> ImageFrame:
         return ImageFrame.from_size(self.image_size_px, (self.cx_px, self.cy_px))
 
+    def _focal_normalised(self, points_px: FloatArray) -> FloatArray:
+        p = np.asarray(points_px, dtype=np.float64)
+        return np.stack(((p[..., 0] - self.cx_px) / self.fx_px, (p[..., 1] - self.cy_px) / self.fy_px), -1)
+
+    def _from_focal_normalised(self, xy: FloatArray) -> FloatArray:
+        return np.stack((xy[..., 0] * self.fx_px + self.cx_px, xy[..., 1] * self.fy_px + self.cy_px), -1)
+
     def undistort_px(self, points_px: FloatArray) -> FloatArray:
         """Measured -> ideal pinhole pixels (identity without distortion)."""
+        if self.lens is not None:
+            return self._from_focal_normalised(self.lens.undistort(self._focal_normalised(points_px)))
         if self.distortion_k == 0.0:
             return points_px
         frame = self.frame
@@ -151,7 +223,22 @@ class Camera:
 
     def distort_px(self, ideal_px: FloatArray) -> FloatArray:
         """Ideal pinhole pixels -> where the lens puts them (identity without distortion)."""
+        if self.lens is not None:
+            return self._from_focal_normalised(self.lens.distort(self._focal_normalised(ideal_px)))
         if self.distortion_k == 0.0:
             return ideal_px
         frame = self.frame
         return frame.to_pixels(distort(frame.normalise(ideal_px), self.distortion_k))
+
+    def project(self, points: FloatArray) -> FloatArray:
+        """Camera-frame points -> pixels, through the lens."""
+        z = points[..., 2]
+        ideal = np.stack(
+            (self.fx_px * points[..., 0] / z + self.cx_px, self.fy_px * points[..., 1] / z + self.cy_px), -1
+        )
+        return self.distort_px(ideal)
+
+    def rays(self, points_px: FloatArray) -> FloatArray:
+        """Pixels -> viewing rays K^-1 x~ (z = 1) of their undistorted positions."""
+        ideal = self.undistort_px(points_px)
+        return rays(ideal - np.array([self.cx_px, self.cy_px]), np.array([self.fx_px, self.fy_px]))
