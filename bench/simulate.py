@@ -55,7 +55,8 @@ class SceneConfig:
     population_mean_frac: float = 0.0  # the crowd's mean height = height_mean_m (1 + U(-p, p))
     keypoint_bias_px: float = 0.0  # shoulder keypoint offset along the body, U(-b, b) px per 1080 px of image height
     ankle_height_m: float = 0.0  # ankle keypoints this far above the ground (scaled with each person's height)
-    lean_deg: float = 0.0  # each person leans by N(0, lean) about each horizontal axis
+    lean_deg: float = 0.0  # frame-to-frame sway of the ankle-to-shoulder axis, N(0, lean) degrees per axis
+    forward_lean_deg: float = 0.0  # walkers' own forward lean along their walk, N(f, f / 2) degrees, kept
     noise_rel: float = 0.0  # keypoint noise std = hypot(noise_px, noise_rel x segment length)
     observations_per_person: int = 1  # each individual seen this many times along a short walk
 
@@ -98,7 +99,8 @@ class SceneConfig:
             population_mean_frac=0.04,
             keypoint_bias_px=2.0,
             ankle_height_m=0.07,
-            lean_deg=3.0,
+            lean_deg=2.0,
+            forward_lean_deg=1.0,
             noise_rel=0.01,
             observations_per_person=4,
         )
@@ -267,6 +269,7 @@ def _place_visible_people(
         heights = heights * (1.0 + rng.uniform(-config.population_mean_frac, config.population_mean_frac))
     chosen: list[FloatArray] = []
     owner: list[int] = []
+    headings: list[FloatArray | None] = []
     reach = config.max_range_m
     for _ in range(200):
         m = 4 * n
@@ -285,41 +288,61 @@ def _place_visible_people(
             if len(owner) == n:
                 break
             person = owner[-1] + 1 if owner else 0
-            walk = _walk(rng, candidate, normal, per_person) if per_person > 1 else candidate[None]
+            walk, heading = _walk(rng, candidate, normal, per_person) if per_person > 1 else (candidate[None], None)
             top = walk + heights[person] * normal
             seen = camera.sees(walk, config.image_size) & camera.sees(top, config.image_size)
             for point in walk[seen][: n - len(owner)]:
                 chosen.append(point)
                 owner.append(person)
+                headings.append(heading)
         if len(owner) == n:
             labels = np.array(owner)
             h = heights[labels]
             x_b = np.array(chosen) + config.ankle_height_m * (h / config.height_mean_m)[:, None] * normal
-            return x_b, h, labels, _lean(rng, config, normal, n)
+            return x_b, h, labels, _lean(rng, config, normal, labels, headings)
     return None
 
 
-def _walk(rng: np.random.Generator, start: FloatArray, normal: FloatArray, count: int) -> FloatArray:
-    """count ground points 0.7 m apart (a stride at walking pace between sampled frames) in a random direction."""
+def _walk(rng: np.random.Generator, start: FloatArray, normal: FloatArray, count: int) -> tuple[FloatArray, FloatArray]:
+    """count ground points 0.7 m apart (a stride at walking pace between sampled frames) in a random direction,
+    and that direction."""
     helper = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
     e1 = np.cross(normal, helper)
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(normal, e1)
     angle = rng.uniform(0, 2 * np.pi)
     direction = np.cos(angle) * e1 + np.sin(angle) * e2
-    return start + 0.7 * np.arange(count)[:, None] * direction
+    return start + 0.7 * np.arange(count)[:, None] * direction, direction
 
 
-def _lean(rng: np.random.Generator, config: SceneConfig, normal: FloatArray, n: int) -> FloatArray:
-    """(n, 3) unit up-directions of people's bodies: the normal, tilted by N(0, lean) about each horizontal axis."""
-    if config.lean_deg <= 0:
+def _lean(
+    rng: np.random.Generator,
+    config: SceneConfig,
+    normal: FloatArray,
+    labels: np.ndarray,
+    headings: list[FloatArray | None],
+) -> FloatArray:
+    """(n, 3) unit up-directions of people's bodies. A walker leans forward, along their walking direction, by
+    their own N(forward, forward / 2) degrees, kept from frame to frame, and sways by N(0, lean) per axis from
+    frame to frame (the ankle centre swings about the pelvis through the gait cycle); people seen once lean
+    forward in a random direction. The ankle-centre-to-shoulder-centre axis leans less than the trunk: a
+    3 degree trunk lean over its 0.5 m moves the shoulders ~2.5 cm, about 1 degree of the 1.3 m segment."""
+    n = len(labels)
+    if config.lean_deg <= 0 and config.forward_lean_deg <= 0:
         return np.broadcast_to(normal, (n, 3)).copy()
     helper = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
     e1 = np.cross(normal, helper)
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(normal, e1)
-    tilt = np.tan(np.radians(rng.normal(0.0, config.lean_deg, (n, 2))))
-    up = normal + tilt[:, :1] * e1 + tilt[:, 1:] * e2
+    forward = rng.normal(config.forward_lean_deg, config.forward_lean_deg / 2.0, int(labels.max()) + 1)[labels]
+    sway = rng.normal(0.0, config.lean_deg, (n, 2))
+    up = np.empty((n, 3))
+    for i, heading in enumerate(headings):
+        if heading is None:
+            angle = rng.uniform(0, 2 * np.pi)
+            heading = np.cos(angle) * e1 + np.sin(angle) * e2
+        tilt = np.tan(np.radians(forward[i])) * heading + np.tan(np.radians(sway[i, 0])) * e1
+        up[i] = normal + tilt + np.tan(np.radians(sway[i, 1])) * e2
     return up / np.linalg.norm(up, axis=1, keepdims=True)
 
 

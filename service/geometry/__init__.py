@@ -18,10 +18,12 @@ pipeline).
 
 from .calibrate import calibrate
 from .calibration import Calibration, Uncertainty
+from .camera import OpenCVLens
 from .errors import CalibrationError
 from .measure import Measurement, measure
 from .priors import DEFAULT_HEIGHT_M, DEFAULT_HEIGHT_STD_M
 from .problem import CalibrationProblem, SolveOptions
+from .quality import Quality, assess
 
 __all__ = [
     "DEFAULT_HEIGHT_M",
@@ -30,8 +32,11 @@ __all__ = [
     "CalibrationError",
     "CalibrationProblem",
     "Measurement",
+    "OpenCVLens",
+    "Quality",
     "SolveOptions",
     "Uncertainty",
+    "assess",
     "calibrate",
     "measure",
 ]

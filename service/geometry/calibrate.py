@@ -8,7 +8,7 @@ determine (posterior.py, refine.py, model.py); the placement of every person; pl
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -28,9 +28,11 @@ from .posterior import (
     canonical_covariance,
     direction_residuals_n,
     estimate_noise,
+    estimate_noise_and_lean,
     fit_posterior,
 )
 from .problem import CalibrationProblem, SolveOptions
+from .quality import assess
 from .ransac import RansacOptions
 from .reconstruct import intersect_plane, place_people
 from .uncertainty import summarise
@@ -45,11 +47,12 @@ _OUTSIDE_MARGIN = 1.0
 # determined the camera (e.g. a wrong RANSAC consensus, or every person at one
 # depth); it is refused rather than reported.
 MAX_RELATIVE_FOCAL_STD = 0.5
-# Below this many distinct people a focal length is not reported at all: a handful of people leaves the
-# posterior so far from Gaussian that its sigma means nothing (4 people at 3 px noise: f = 161 +- 72 px for a
-# true 540), and RANSAC has no redundancy to reject one bad detection. Between this and
-# service.geometry.quality's thresholds a calibration is reported but graded unreliable.
+# Below this many distinct people a focal length is reported only when they pin it to FEW_PEOPLE_FOCAL_STD: a
+# handful of people leaves the posterior so far from Gaussian that a wide sigma means nothing (4 people at
+# 3 px noise: f = 161 +- 72 px for a true 540), and RANSAC has no redundancy to reject one bad detection.
+# Between this and service.geometry.quality's thresholds a calibration is reported but graded unreliable.
 MIN_INDIVIDUALS_FOR_FOCAL = 5
+FEW_PEOPLE_FOCAL_STD = 0.1
 # An estimated lens must move the image corner by more than this many keypoint-noise sigmas to be kept: a
 # distortion smaller than the noise changes nothing measurable and only adds a parameter.
 _MATERIAL_LENS_SIGMAS = 1.0
@@ -57,6 +60,7 @@ _LENS_TEST_PEOPLE = 600
 # A lens is estimated only from this many agreeing people: with fewer the test has no power and a fitted k
 # mostly fits noise (three people even determine k exactly, whatever the lens).
 _MIN_LENS_PEOPLE = 20
+_LENS_FOCAL_ROUNDS = 5
 
 
 def _as_points(name: str, values: ArrayLike) -> FloatArray:
@@ -155,24 +159,34 @@ def _consensus(
     return _Stage(*points, found.solution, found.iterations, k)
 
 
-def _undistorted_input(
-    tops_px: FloatArray, bottoms_px: FloatArray, problem: CalibrationProblem, options: SolveOptions
+def _undistort_with(
+    tops_px: FloatArray, bottoms_px: FloatArray, problem: CalibrationProblem, focal_px: tuple[float, float]
 ) -> tuple[FloatArray, FloatArray]:
-    """Keypoints through the inverse of the user's lens. OpenCV's model works on focal-normalised
-    coordinates, so without a known focal length a first solve on the raw points provides one."""
-    if problem.lens is None:
-        return tops_px, bottoms_px
+    """Keypoints through the inverse of the user's lens for a focal length (OpenCV's model works on
+    focal-normalised coordinates). A point the lens model cannot invert (far outside its calibrated range)
+    keeps its position; the consensus then judges it like any other person."""
     frame = ImageFrame.from_size(problem.image_size_px, problem.principal_point_px)
-    focal = problem.known_focal_px
-    if focal is None:
-        usable = np.linalg.norm(tops_px - bottoms_px, axis=1) > 0
-        first = _consensus(frame, tops_px, bottoms_px, usable, problem, options, None)
-        focal = (first.solution.focal_n[0] * frame.scale_px, first.solution.focal_n[1] * frame.scale_px)
-    camera = Camera(focal[0], focal[1], frame.cx_px, frame.cy_px, problem.image_size_px, lens=problem.lens)
+    camera = Camera(focal_px[0], focal_px[1], frame.cx_px, frame.cy_px, problem.image_size_px, lens=problem.lens)
     tops_u, bottoms_u = camera.undistort_px(tops_px), camera.undistort_px(bottoms_px)
-    # A point the lens model cannot invert (far outside its calibrated range) keeps its position; the
-    # consensus then judges it like any other person.
     return np.where(np.isfinite(tops_u), tops_u, tops_px), np.where(np.isfinite(bottoms_u), bottoms_u, bottoms_px)
+
+
+def _lens_focal_px(
+    tops_px: FloatArray, bottoms_px: FloatArray, usable: FloatArray, problem: CalibrationProblem, options: SolveOptions
+) -> tuple[float, float]:
+    """The focal length to undistort a given lens with when none is known: the consensus's, on points
+    undistorted with the previous estimate, to a fixed point (the undistortion depends on f only weakly)."""
+    frame = ImageFrame.from_size(problem.image_size_px, problem.principal_point_px)
+    points = (tops_px, bottoms_px)
+    focal = (0.0, 0.0)
+    for _ in range(_LENS_FOCAL_ROUNDS):
+        stage = _consensus(frame, *points, usable, problem, options, None)
+        new = (stage.solution.focal_n[0] * frame.scale_px, stage.solution.focal_n[1] * frame.scale_px)
+        if abs(new[0] / max(focal[0], 1e-300) - 1.0) < 1e-9:
+            break
+        focal = new
+        points = _undistort_with(tops_px, bottoms_px, problem, focal)
+    return focal
 
 
 def _priors(problem: CalibrationProblem, frame: ImageFrame, focal_known: bool, lens_prior: bool) -> Priors:
@@ -210,7 +224,26 @@ def calibrate(
     options = SolveOptions() if options is None else options
     tops_px, bottoms_px, usable = validate_keypoints(tops, bottoms, problem.image_size_px)
     track = _tracks(tracks, len(tops_px))
-    tops_px, bottoms_px = _undistorted_input(tops_px, bottoms_px, problem, options)
+    if problem.lens is None:
+        return _solve(tops_px, bottoms_px, usable, track, problem, options)
+    known = problem.known_focal_px
+    focal = known or _lens_focal_px(tops_px, bottoms_px, usable, problem, options)
+    cal = _solve(*_undistort_with(tops_px, bottoms_px, problem, focal), usable, track, problem, options)
+    if known is None and abs(cal.fx / focal[0] - 1.0) > 1e-6:
+        # Undistorted with the consensus's focal length; the final one differs a little: once more with it.
+        cal = _solve(*_undistort_with(tops_px, bottoms_px, problem, (cal.fx, cal.fy)), usable, track, problem, options)
+    return cal
+
+
+def _solve(
+    tops_px: FloatArray,
+    bottoms_px: FloatArray,
+    usable: FloatArray,
+    track: np.ndarray,
+    problem: CalibrationProblem,
+    options: SolveOptions,
+) -> Calibration:
+    """The pipeline on keypoints free of the user's lens."""
     frame = ImageFrame.from_size(problem.image_size_px, problem.principal_point_px)
     known = problem.known_focal_px
     focal_n = None if known is None else (known[0] / frame.scale_px, known[1] / frame.scale_px)
@@ -227,7 +260,7 @@ def calibrate(
         posterior = _posterior(stage, track, problem, options, focal_n, noise_floor_n, optimise, minimum)
     cal = _finish(stage, posterior, problem, track, optimise)
     check_plausible(cal, minimum)
-    return cal
+    return replace(cal, quality=assess(cal)) if cal.uncertainty is not None else cal
 
 
 def _with_lens(
@@ -278,12 +311,12 @@ def _posterior(
     inl = stage.inliers
     tops_n, bottoms_n = stage.tops_n[inl], stage.bottoms_n[inl]
     sol = stage.solution
-    noise = estimate_noise(
-        direction_residuals_n(tops_n, bottoms_n, sol), np.hypot(*(tops_n - bottoms_n).T), noise_floor_n
+    noise, lean = estimate_noise_and_lean(
+        direction_residuals_n(tops_n, bottoms_n, sol), np.hypot(*(tops_n - bottoms_n).T), track[inl], noise_floor_n
     )
     if not optimise:
-        noise = NoiseModel(noise.sigma_n, 0.0)
-    priors = _priors(problem, stage.frame, focal_n is not None, options.distortion)
+        noise, lean = NoiseModel(noise.sigma_n, 0.0), 0.0
+    priors = replace(_priors(problem, stage.frame, focal_n is not None, options.distortion), lean_rad=lean)
     layout = Layout.build(problem.equal_focal, focal_n, priors, stage.k != 0.0)
     _, _, heights = place_people(tops_n, bottoms_n, sol.focal_n, sol.normal, sol.rho_m, problem.height_m)
     # The latent ankles live in measured (distorted) coordinates: the model undistorts them itself.
@@ -315,7 +348,8 @@ def check_plausible(cal: Calibration, minimum_people: int) -> None:
     if cal.num_inliers < minimum_people:
         raise CalibrationError(f"only {cal.num_inliers} people could be placed on the ground plane")
     unc = cal.uncertainty
-    if unc is not None and cal.focal_source == "estimated" and cal.individuals < MIN_INDIVIDUALS_FOR_FOCAL:
+    few = cal.individuals < MIN_INDIVIDUALS_FOR_FOCAL
+    if unc is not None and cal.focal_source == "estimated" and few and unc.fx_px > FEW_PEOPLE_FOCAL_STD * cal.fx:
         raise CalibrationError(
             f"the people seen do not determine the focal length: {cal.individuals} distinct people agree, at "
             f"least {MIN_INDIVIDUALS_FOR_FOCAL} are needed; more people, spread over the view and over distances, "
@@ -362,7 +396,7 @@ def _finish(
         rows = np.flatnonzero(inliers)
         x_b[rows] = intersect_plane(rays(ankles, focal), normal, rho)
         mu = float(posterior.problem.cameras(fit.theta).mu[0, 0])
-        h = mu * (1.0 + fit.deviations[posterior.problem.observations.track])
+        h = mu * (1.0 + fit.person[posterior.problem.observations.track, 0])
         heights[rows] = h
         x_t[rows] = x_b[rows] + h[:, None] * normal
     placed = inliers & np.all(np.isfinite(x_b), axis=1)

@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
 from .camera import Camera, OpenCVLens
 from .vec import FloatArray
+
+if TYPE_CHECKING:
+    from .quality import Quality
 
 Source = Literal["given", "estimated", "assumed"]
 """given: the user's value, exact; estimated: determined by the people (with its sigma); assumed: a default
@@ -72,6 +75,8 @@ class Calibration:
     distortion_source: Source = "assumed"
     # Distinct individuals among the inliers (observations of one person in many frames count once).
     individuals: int = 0
+    # What the calibration is worth (service.geometry.quality); None without an uncertainty.
+    quality: Quality | None = None
 
     @property
     def camera(self) -> Camera:

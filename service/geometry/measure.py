@@ -151,6 +151,6 @@ def measure(
         "ni,nj->nij", dx_dh, dx_dh
     )
     var += np.einsum("ijx,ixy,ijy->ij", unit, per_person, unit) + np.einsum("ijx,jxy,ijy->ij", unit, per_person, unit)
-    std = np.sqrt(var)
+    std = np.sqrt(np.maximum(var, 0.0))  # rounding can take a zero variance (two people at one spot) below 0
     np.fill_diagonal(std, 0.0)
     return Measurement(x0, from_ankles & np.all(np.isfinite(x0), axis=1), dist, std)

@@ -12,7 +12,11 @@ centre or on a given principal point, scaled by (W + H) / 4). Observation o of i
 
 and the measured ankle and shoulder centres are a_o and top_o plus Gaussian noise: sigma on the ankle,
 sqrt(sigma^2 + (lambda l_o)^2) on the shoulder, where l_o is the segment's length (walking people lean, so the
-shoulders scatter in proportion to the person's size). Heights h_t = mu (1 + delta_t), delta_t ~ N(0,
+shoulders scatter in proportion to the person's size). Each individual also has a sideways lean a_t ~ N(0,
+lambda_t), shared by their observations (a walking posture does not change from frame to
+frame, so thirty observations of one leaning person are one draw of a lean, like one draw of a height):
+X_T = X_B + h_t normalise(N + a_t s) with s the camera's x axis laid on the ground (only the sideways lean:
+see _body_axes). Heights h_t = mu (1 + delta_t), delta_t ~ N(0,
 sigma_h / mu0), belong to individuals, not to observations: one person seen in thirty frames is one draw of
 a height, not thirty (on the Oxford Town Centre clip a few short people walking near the camera otherwise
 tilt the whole ground by 2 degrees). The spread is relative on purpose: people's images fix only h / rho,
@@ -23,7 +27,8 @@ known camera height) sets the scale.
 
 Camera parameters theta, each present only when it is estimated (`Layout`):
 
-    log_f, aspect    fx = e^log_f, fy = fx e^aspect (square pixels: aspect has a prior, fy/fx is never exactly 1)
+    log_f, aspect    fx = e^log_f, fy = fx e^aspect (square pixels: fy/fx is never exactly 1; a consider
+                     parameter, so fx = fy is reported with the aspect's prior in the covariance)
     log_fy           instead of aspect when fx and fy are free
     cx, cy           principal point offset from the frame's centre, with a prior unless given
     t1, t2           the normal N = normalise(N0 + t1 e1 + t2 e2) around the starting normal
@@ -68,6 +73,7 @@ class Priors:
     distortion_k: float | None  # spread of undetected division-model distortion; None: no lens beyond the given
     log_mean_height: float | None  # None: the mean height is exact
     height_std_rel: float  # individual heights' spread relative to the mean
+    lean_rad: float = 0.0  # spread of individuals' sideways lean (radians); 0: not modelled
     # (metres above the ankle plane, 1-sigma): an installer-known camera height, already minus the ankle height.
     camera_height_m: tuple[float, float] | None = None
 
@@ -120,7 +126,7 @@ class Layout:
             add("bias", priors.bias_n)
         if priors.log_mean_height is not None:
             add("log_mu", priors.log_mean_height)
-        considered = {"bias"} | (set() if estimate_k else {"k"})
+        considered = {"bias", "aspect"} | (set() if estimate_k else {"k"})
         return cls(tuple(names), np.array(std), fixed, frozenset(considered & set(names)))
 
     def bounds(self) -> tuple[FloatArray, FloatArray]:
@@ -185,18 +191,36 @@ def unpack(layout: Layout, theta: FloatArray, normal0: FloatArray, mu0: float) -
     )
 
 
-def predict(cam: CameraBatch, ankles_n: FloatArray, heights_m: FloatArray) -> FloatArray:
+def _body_axes(normal: FloatArray, lean: FloatArray) -> FloatArray:
+    """(K, n, 3) unit body axes: the normal tilted sideways (along the camera's x axis laid on the ground) by
+    `lean` ((K?, n) radians).
+
+    Only the sideways lean is a parameter: a lean towards or away from the camera changes a person's image
+    only as a height change would (it is the height's deviation that absorbs it), and a free lean along
+    the view on top of it lets dozens of individuals' leans trade against the focal length and tilt (the
+    posterior then drifts along the principal point's unobservable direction).
+    """
+    side = np.array([1.0, 0.0, 0.0]) - normal[..., :1] * normal
+    side = side / np.linalg.norm(side, axis=-1, keepdims=True)
+    axis = normal + lean[..., None] * side
+    return axis / np.linalg.norm(axis, axis=-1, keepdims=True)
+
+
+def predict(
+    cam: CameraBatch, ankles_n: FloatArray, heights_m: FloatArray, lean: FloatArray | None = None
+) -> FloatArray:
     """(K, n, 2) predicted (distorted, biased) shoulder centres of people standing on latent ankles (n, 2) or
-    (K, n, 2) with heights (n,) or (K, n)."""
+    (K, n, 2) with heights (n,) or (K, n), their bodies leaning by `lean` ((K?, n, 2) radians, or upright)."""
     rel = ankles_n - cam.c
     undist = rel / (1.0 + cam.k[..., None] * np.sum(rel * rel, -1, keepdims=True))
     rx, ry = undist[..., 0] / cam.fx, undist[..., 1] / cam.fy
     n = cam.normal
     denom = np.minimum(rx * n[..., 0] + ry * n[..., 1] + n[..., 2], -1e-9)  # a ray that misses the ground
     t = -cam.rho / denom
-    xt = rx * t + heights_m * n[..., 0]
-    yt = ry * t + heights_m * n[..., 1]
-    zt = np.maximum(t + heights_m * n[..., 2], 1e-9)
+    up = n if lean is None else _body_axes(n, lean)
+    xt = rx * t + heights_m * up[..., 0]
+    yt = ry * t + heights_m * up[..., 1]
+    zt = np.maximum(t + heights_m * up[..., 2], 1e-9)
     top_u = np.stack((cam.fx * xt / zt, cam.fy * yt / zt), -1)
     disc = np.maximum(1.0 - 4.0 * cam.k[..., None] * np.sum(top_u * top_u, -1, keepdims=True), 0.0)
     top = cam.c + top_u * (2.0 / (1.0 + np.sqrt(disc)))
@@ -216,8 +240,11 @@ class Observations:
     track: np.ndarray  # (n,) int in [0, T)
     tracks: int
 
-    def residuals(self, cam: CameraBatch, ankles_n: FloatArray, deviations: FloatArray) -> FloatArray:
-        """(K, n, 4) whitened residuals (ankle 2, shoulder 2) of people of heights mu (1 + deviations)."""
-        top = predict(cam, ankles_n, cam.mu * (1.0 + deviations))
+    def residuals(self, cam: CameraBatch, ankles_n: FloatArray, person: FloatArray) -> FloatArray:
+        """(K, n, 4) whitened residuals (ankle 2, shoulder 2) of people whose individual parameters are
+        `person` ((K?, n, q): the height deviation, h = mu (1 + deviation), then the sideways lean, if
+        modelled)."""
+        lean = person[..., 1] if person.shape[-1] == 2 else None
+        top = predict(cam, ankles_n, cam.mu * (1.0 + person[..., 0]), lean)
         ankle_r = np.broadcast_to((ankles_n - self.bottoms_n) / self.ankle_std_n[:, None], top.shape)
         return np.concatenate((ankle_r, (top - self.tops_n) / self.top_std_n[:, None]), -1)

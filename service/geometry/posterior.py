@@ -8,6 +8,10 @@ segment from the vertical vanishing point has variance sigma^2 + lambda^2 l_o^2 
 medians of d^2 in groups of similar l, divided by 0.455 (the median of chi^2_1), are fitted by non-negative
 least squares in (sigma^2, lambda^2). A floor keeps the likelihood well conditioned on perfect input.
 
+Lean is partly an individual's: a walking posture persists from frame to frame, so when observations are
+linked into individuals the lean they keep is a per-individual latent (service.geometry.model) with its
+spread estimated by `estimate_noise_and_lean`, and only the frame-to-frame part stays in the noise.
+
 Calibrated sigma. The covariance is the posterior's, S^-1 from the reduced normal equations, with the data
 whitened by the estimated noise. When the data misfit that noise (mean square per degree of freedom above
 1: unmodelled effects), the noise is scaled up by that factor and the covariance recomputed, so the data's
@@ -36,6 +40,7 @@ MIN_NOISE_FRACTION = 2e-5
 _MIN_PEOPLE_FOR_LEAN = 40
 _LEAN_GROUPS = 4
 _MAX_LEAN = 0.15
+_MIN_TRACKS_FOR_LEAN = 5
 
 # A person whose whitened residual cost exceeds this (chi^2 with 2 degrees of
 # freedom: 4 residuals minus 2 own ankle parameters, p = 0.999) is not explained
@@ -76,6 +81,37 @@ def estimate_noise(d_n: FloatArray, length_n: FloatArray, floor_n: float) -> Noi
     return NoiseModel(max(float(np.sqrt(s2)), floor_n), lean)
 
 
+def estimate_noise_and_lean(
+    d_n: FloatArray, length_n: FloatArray, tracks: np.ndarray, floor_n: float
+) -> tuple[NoiseModel, float]:
+    """The noise within an individual's observations, and the spread of individuals' lean (radians).
+
+    A one-way analysis of variance of the direction residuals over individuals seen more than once: the
+    residuals' deviations from their individual's mean angle (d_o - l_o mean_t(d / l), scaled by m / (m - 1)
+    for the mean's own degree of freedom) give the frame-to-frame noise; the individuals' mean angles, less
+    what that noise explains of them, give the lean they keep from frame to frame. Without individuals seen
+    twice (or with fewer than _MIN_TRACKS_FOR_LEAN of them) the lean cannot be told from noise: it is 0 and
+    the size-proportional noise carries it.
+    """
+    labels, track = np.unique(tracks, return_inverse=True)
+    counts = np.bincount(track, minlength=len(labels))
+    repeated = counts[track] >= 2
+    if (counts >= 2).sum() < _MIN_TRACKS_FOR_LEAN or repeated.sum() < _MIN_PEOPLE_FOR_LEAN:
+        return estimate_noise(d_n, length_n, floor_n), 0.0
+    angle = d_n / length_n
+    mean_angle = np.bincount(track, angle, len(labels)) / np.maximum(counts, 1)
+    m = counts[track][repeated]
+    within = (d_n - length_n * mean_angle[track])[repeated] * np.sqrt(m / (m - 1.0))
+    noise = estimate_noise(within, length_n[repeated], floor_n)
+    multi = counts >= 2
+    explained = (
+        np.bincount(track[repeated], (noise.sigma_n / length_n[repeated]) ** 2 + noise.lean**2, len(labels))[multi]
+        / counts[multi] ** 2
+    )
+    between2 = float(np.median(mean_angle[multi] ** 2) / 0.455 - np.median(explained))
+    return noise, min(float(np.sqrt(max(between2, 0.0))), _MAX_LEAN)
+
+
 def observations(tops_n: FloatArray, bottoms_n: FloatArray, tracks: np.ndarray, noise: NoiseModel) -> Observations:
     labels, track = np.unique(tracks, return_inverse=True)
     std = noise.per_observation(np.hypot(*(tops_n - bottoms_n).T))
@@ -93,10 +129,13 @@ def initial_theta(layout: Layout, solution: LinearSolution, k: float) -> FloatAr
     return np.array([values.get(name, 0.0) for name in layout.names], dtype=np.float64)
 
 
-def track_deviations(heights_m: FloatArray, obs: Observations, prior_m: float) -> FloatArray:
-    """Each individual's starting height relative to the prior: the mean over its observations, clipped."""
+def start_people(heights_m: FloatArray, obs: Observations, prior_m: float, q: int) -> FloatArray:
+    """(T, q) starting individuals: height relative to the prior (the mean over the observations, clipped),
+    upright."""
     h = np.clip(np.nan_to_num(heights_m / prior_m - 1.0, nan=0.0), -0.5, 0.5)
-    return np.bincount(obs.track, h, obs.tracks) / np.maximum(np.bincount(obs.track, minlength=obs.tracks), 1)
+    start = np.zeros((obs.tracks, q))
+    start[:, 0] = np.bincount(obs.track, h, obs.tracks) / np.maximum(np.bincount(obs.track, minlength=obs.tracks), 1)
+    return start
 
 
 @dataclass(frozen=True)
@@ -127,8 +166,8 @@ def fit_posterior(
     obs = observations(tops_n, bottoms_n, tracks, noise)
     problem = MapProblem(layout, priors, obs, solution.normal, mu0)
     theta0 = initial_theta(layout, solution, k)
-    heights0 = track_deviations(start_heights_m, obs, mu0)
-    fit = fit_map(problem, theta0, heights0, optimise=optimise)
+    q = 2 if priors.lean_rad > 0 else 1
+    fit = fit_map(problem, theta0, start_people(start_heights_m, obs, mu0, q), optimise=optimise)
     kept = np.ones(len(tops_n), dtype=bool)
     if optimise and reject:
         # RANSAC's tests are coarse (fixed tolerances); the fitted model knows each person's expected
@@ -139,16 +178,16 @@ def fit_posterior(
         keep = cost <= cut
         if not keep.all() and keep.sum() >= max(minimum_people, 0.5 * len(keep)):
             kept = keep
-            heights_o = mu0 * (1.0 + fit.deviations[obs.track[keep]])
+            heights_o = mu0 * (1.0 + fit.person[obs.track[keep], 0])
             obs = observations(tops_n[keep], bottoms_n[keep], tracks[keep], noise)
             problem = replace(problem, observations=obs)
-            fit = fit_map(problem, fit.theta, track_deviations(heights_o, obs, mu0))
+            fit = fit_map(problem, fit.theta, start_people(heights_o, obs, mu0, q))
     if fit.variance_factor > 1.0:
         scale = float(np.sqrt(fit.variance_factor))
         noise = NoiseModel(noise.sigma_n * scale, noise.lean * scale)
         obs = replace(obs, ankle_std_n=obs.ankle_std_n * scale, top_std_n=obs.top_std_n * scale)
         problem = replace(problem, observations=obs)
-        again = fit_map(problem, fit.theta, fit.deviations, optimise=False, ankles=fit.ankles_n)
+        again = fit_map(problem, fit.theta, fit.person, optimise=False, ankles=fit.ankles_n)
         fit = replace(fit, covariance=again.covariance)
     return Posterior(problem, fit, noise, kept)
 

@@ -2,17 +2,17 @@
 
 The linear solver minimises algebraic errors, treats every person as exactly h tall and assumes the
 principal point, square pixels and an unbiased pose model. Here the camera parameters theta (with priors on
-what people cannot determine), each observation's latent ankle and each individual's latent height are
-chosen to minimise the whitened residuals of the generative model plus the priors: the statistically
-efficient estimate when the model holds, and its Gauss-Newton covariance carries the priors' spread into
-theta.
+what people cannot determine), each observation's latent ankle and each individual's latent height (and
+lean) are chosen to minimise the whitened residuals of the generative model plus the priors: the
+statistically efficient estimate when the model holds, and its Gauss-Newton covariance carries the priors'
+spread into theta.
 
 Levenberg-Marquardt with the structure of bundle adjustment: the normal equations are arrow-shaped, so
-each step eliminates the observations' 2x2 ankle blocks, then each individual's height (one scalar per
-individual, summed over its observations), and solves the small reduced system in theta (the Schur
-complement). The same complement, undamped, is the inverse of theta's marginal covariance. Every step
-costs O(n p^2) for n observations and p camera parameters; Jacobians are central differences, evaluated for
-all observations and all perturbed cameras in two vectorised passes.
+each step eliminates the observations' 2x2 ankle blocks, then each individual's q x q block (q = 1: the
+height; q = 2: height and sideways lean, summed over the individual's observations), and solves the small reduced
+system in theta (the Schur complement). The same complement, undamped, is the inverse of theta's marginal
+covariance. Every step costs O(n p^2) for n observations and p camera parameters; Jacobians are central
+differences, evaluated for all observations and all perturbed cameras in two vectorised passes.
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ class MapFit:
     theta: FloatArray
     covariance: FloatArray  # of theta (p x p): the posterior's Gauss-Newton covariance
     ankles_n: FloatArray  # (n, 2) latent ankle keypoints (distorted, noise-free)
-    deviations: FloatArray  # (T,) each individual's height relative to the mean, h = mu (1 + deviation)
+    person: FloatArray  # (T, q) each individual's height deviation (h = mu (1 + deviation)) [and lean, rad]
     person_costs: FloatArray  # (n,) each observation's squared whitened data residuals
     data_cost: float  # sum of squared whitened data residuals (without the priors)
     variance_factor: float  # data residuals' mean square per degree of freedom
@@ -72,61 +72,65 @@ class _Linearisation:
     r: FloatArray  # (n, 4) data residuals
     j_theta: FloatArray  # (n, 4, p)
     j_ankle: FloatArray  # (n, 4, 2)
-    j_height: FloatArray  # (n, 4)
+    j_person: FloatArray  # (n, 4, q)
 
 
-def _linearise(problem: MapProblem, theta: FloatArray, ankles: FloatArray, heights: FloatArray) -> _Linearisation:
-    """Residuals and central-difference Jacobians; `heights` are the individuals' relative deviations.
+def _linearise(problem: MapProblem, theta: FloatArray, ankles: FloatArray, person: FloatArray) -> _Linearisation:
+    """Residuals and central-difference Jacobians; `person` holds the individuals' (T, q) parameters.
 
     Central differences (truncation error ~1e-10) make the fit converge to the same digits whatever the
     image's scale or the people's order: forward differences left ~1e-6 of the posterior's flat directions
     to floating-point luck.
     """
     obs = problem.observations
-    h_obs = heights[obs.track]
-    p = len(theta)
+    per_obs = person[obs.track]
+    p, q = len(theta), person.shape[1]
     steps = _STEP_THETA * np.maximum(1.0, np.abs(theta))
     thetas = np.vstack((theta, theta + np.diag(steps), theta - np.diag(steps)))
-    res = obs.residuals(problem.cameras(thetas), ankles, h_obs)  # (2p + 1, n, 4)
+    res = obs.residuals(problem.cameras(thetas), ankles, per_obs)  # (2p + 1, n, 4)
     base = res[0]
     j_theta = np.moveaxis((res[1 : p + 1] - res[p + 1 :]) / (2.0 * steps[:, None, None]), 0, -1)
     step_a = _STEP_PERSON * np.maximum(1.0, np.abs(ankles))
-    moved = np.stack([ankles] * 6)
-    moved[0, :, 0] += step_a[:, 0]
-    moved[1, :, 0] -= step_a[:, 0]
-    moved[2, :, 1] += step_a[:, 1]
-    moved[3, :, 1] -= step_a[:, 1]
-    step_h = _STEP_PERSON * np.maximum(1.0, np.abs(h_obs))
-    h_moved = np.stack((h_obs, h_obs, h_obs, h_obs, h_obs + step_h, h_obs - step_h))
-    person = obs.residuals(problem.cameras(np.vstack([theta] * 6)), moved, h_moved)
-    j_ankle = np.stack(
-        ((person[0] - person[1]) / (2.0 * step_a[:, :1]), (person[2] - person[3]) / (2.0 * step_a[:, 1:])), -1
-    )
-    j_height = (person[4] - person[5]) / (2.0 * step_h[:, None])
-    return _Linearisation(base, j_theta, j_ankle, j_height)
+    step_p = _STEP_PERSON * np.maximum(1.0, np.abs(per_obs))
+    moved_a = np.stack([ankles] * (4 + 2 * q))
+    moved_p = np.stack([per_obs] * (4 + 2 * q))
+    for axis in range(2):
+        moved_a[2 * axis, :, axis] += step_a[:, axis]
+        moved_a[2 * axis + 1, :, axis] -= step_a[:, axis]
+    for k in range(q):
+        moved_p[4 + 2 * k, :, k] += step_p[:, k]
+        moved_p[5 + 2 * k, :, k] -= step_p[:, k]
+    res = obs.residuals(problem.cameras(np.vstack([theta] * (4 + 2 * q))), moved_a, moved_p)
+    j_ankle = np.stack([(res[2 * a] - res[2 * a + 1]) / (2.0 * step_a[:, a : a + 1]) for a in range(2)], -1)
+    j_person = np.stack([(res[4 + 2 * k] - res[5 + 2 * k]) / (2.0 * step_p[:, k : k + 1]) for k in range(q)], -1)
+    return _Linearisation(base, j_theta, j_ankle, j_person)
 
 
-def _prior_terms(problem: MapProblem, theta: FloatArray, heights: FloatArray) -> tuple[FloatArray, ...]:
-    """Residuals of the priors and their Jacobians: on theta (p,), on the individuals' deviations (T,), and
-    the camera-height residual with its log_rho derivative."""
+def _person_prior_std(problem: MapProblem, q: int) -> FloatArray:
+    priors = problem.priors
+    return np.array([priors.height_std_rel, priors.lean_rad][:q])
+
+
+def _prior_terms(problem: MapProblem, theta: FloatArray, person: FloatArray) -> tuple[FloatArray, ...]:
+    """Residuals of the priors and their Jacobians: on theta (p,), on the individuals (T, q), and the
+    camera-height residual with its log_rho derivative."""
     layout, priors = problem.layout, problem.priors
     finite = np.isfinite(layout.prior_std)
     r_theta = np.where(finite, theta / np.where(finite, layout.prior_std, 1.0), 0.0)
-    r_height = heights / priors.height_std_rel
+    r_person = person / _person_prior_std(problem, person.shape[1])
     r_cam, d_cam = np.zeros(0), np.zeros(0)
     if priors.camera_height_m is not None:
         rho = float(np.exp(layout.value(theta[None], "log_rho")[0]))
         known, std = priors.camera_height_m
         r_cam, d_cam = np.array([(rho - known) / std]), np.array([rho / std])
-    return r_theta, r_height, r_cam, d_cam
+    return r_theta, r_person, r_cam, d_cam
 
 
-def _cost(problem: MapProblem, theta: FloatArray, ankles: FloatArray, heights: FloatArray) -> tuple[float, FloatArray]:
+def _cost(problem: MapProblem, theta: FloatArray, ankles: FloatArray, person: FloatArray) -> float:
     obs = problem.observations
-    r = obs.residuals(problem.cameras(theta), ankles, heights[obs.track])[0]
-    priors = _prior_terms(problem, theta, heights)
-    total = float(np.sum(r * r) + sum(np.sum(x * x) for x in (priors[0], priors[1], priors[2])))
-    return total, r
+    r = obs.residuals(problem.cameras(theta), ankles, person[obs.track])[0]
+    priors = _prior_terms(problem, theta, person)
+    return float(np.sum(r * r) + sum(np.sum(x * x) for x in (priors[0], priors[1], priors[2])))
 
 
 @dataclass
@@ -134,41 +138,38 @@ class _Reduced:
     s: FloatArray  # (p, p) Schur complement on theta
     g: FloatArray  # (p,)
     # Back-substitution pieces.
-    x: FloatArray
-    y: FloatArray
-    z: FloatArray
-    h_hh: FloatArray
-    h_htheta: FloatArray
-    g_h: FloatArray
+    x: FloatArray  # (n, 2, p)
+    y: FloatArray  # (n, 2, q)
+    z: FloatArray  # (n, 2)
+    h_inv: FloatArray  # (T, q, q)
+    h_t: FloatArray  # (T, q, p)
+    g_h: FloatArray  # (T, q)
 
 
 def _reduce(
-    problem: MapProblem, lin: _Linearisation, theta: FloatArray, heights: FloatArray, damping: float
+    problem: MapProblem, lin: _Linearisation, theta: FloatArray, person: FloatArray, damping: float
 ) -> _Reduced:
     obs, layout = problem.observations, problem.layout
-    ja, jh, jt, r = lin.j_ankle, lin.j_height, lin.j_theta, lin.r
-    p = len(theta)
-    ja_t = np.swapaxes(ja, 1, 2)
-    u_aa = ja_t @ ja
-    u_ah = (ja_t @ jh[:, :, None])[:, :, 0]
-    u_hh = np.sum(jh * jh, 1)
-    w_at = ja_t @ jt
-    w_ht = (jh[:, None, :] @ jt)[:, 0, :]
+    ja, jh, jt, r = lin.j_ankle, lin.j_person, lin.j_theta, lin.r
+    p, q, t_count = len(theta), person.shape[1], obs.tracks
+    ja_t, jh_t = np.swapaxes(ja, 1, 2), np.swapaxes(jh, 1, 2)
+    u_aa = ja_t @ ja  # (n, 2, 2)
+    u_ah = ja_t @ jh  # (n, 2, q)
+    u_hh = jh_t @ jh  # (n, q, q)
+    w_at = ja_t @ jt  # (n, 2, p)
+    w_ht = jh_t @ jt  # (n, q, p)
     flat = jt.reshape(-1, p)
     v_tt = flat.T @ flat
     g_a = (ja_t @ r[:, :, None])[:, :, 0]
-    g_h = np.sum(jh * r, 1)
+    g_h = (jh_t @ r[:, :, None])[:, :, 0]
     g_t = flat.T @ r.ravel()
 
-    r_theta, r_height, r_cam, d_cam = _prior_terms(problem, theta, heights)
+    r_theta, r_person, r_cam, d_cam = _prior_terms(problem, theta, person)
     finite = np.isfinite(layout.prior_std)
     inv_std = np.where(finite, 1.0 / np.where(finite, layout.prior_std, 1.0), 0.0)
     v_tt = v_tt + np.diag(inv_std**2)
     g_t = g_t + inv_std * r_theta
-    inv_h = 1.0 / problem.priors.height_std_rel
-    t_count = obs.tracks
-    h_prior_hh = np.full(t_count, inv_h**2)
-    h_prior_g = inv_h * r_height
+    inv_person = 1.0 / _person_prior_std(problem, q)
     if len(r_cam):
         i = layout.index["log_rho"]
         v_tt[i, i] += float(d_cam[0] ** 2)
@@ -179,26 +180,34 @@ def _reduce(
     v_tt = v_tt + damping * np.diag(np.diag(v_tt))
     u_inv = _inv2(u_aa)
     x = u_inv @ w_at  # (n, 2, p)
-    y = (u_inv @ u_ah[:, :, None])[:, :, 0]
+    y = u_inv @ u_ah  # (n, 2, q)
     z = (u_inv @ g_a[:, :, None])[:, :, 0]
-    hh_o = u_hh - np.sum(u_ah * y, 1)
-    ht_o = w_ht - (u_ah[:, None, :] @ x)[:, 0, :]
-    gh_o = g_h - np.sum(u_ah * z, 1)
-    h_hh = (np.bincount(obs.track, hh_o, t_count) + h_prior_hh) * (1.0 + damping)
-    h_ht = np.zeros((t_count, p))
+    u_ah_t = np.swapaxes(u_ah, 1, 2)
+    hh_o = u_hh - u_ah_t @ y
+    ht_o = w_ht - u_ah_t @ x
+    gh_o = g_h - (u_ah_t @ z[:, :, None])[:, :, 0]
+    h_hh = np.zeros((t_count, q, q))
+    h_ht = np.zeros((t_count, q, p))
+    gh_t = np.zeros((t_count, q))
+    np.add.at(h_hh, obs.track, hh_o)
     np.add.at(h_ht, obs.track, ht_o)
-    gh_t = np.bincount(obs.track, gh_o, t_count) + h_prior_g
+    np.add.at(gh_t, obs.track, gh_o)
+    h_hh += np.diag(inv_person**2)
+    gh_t += inv_person * r_person
+    h_hh = h_hh + damping * np.einsum("tii->ti", h_hh)[:, :, None] * np.eye(q)
+    h_inv = np.linalg.inv(h_hh)
     w_flat = w_at.reshape(-1, p)
-    s = v_tt - w_flat.T @ x.reshape(-1, p) - (h_ht / h_hh[:, None]).T @ h_ht
-    g = g_t - w_flat.T @ z.ravel() - h_ht.T @ (gh_t / h_hh)
-    return _Reduced(s, g, x, y, z, h_hh, h_ht, gh_t)
+    hw = h_inv @ h_ht  # (T, q, p)
+    s = v_tt - w_flat.T @ x.reshape(-1, p) - np.einsum("tkj,tkl->jl", h_ht, hw)
+    g = g_t - w_flat.T @ z.ravel() - np.einsum("tkj,tk->j", hw, gh_t)
+    return _Reduced(s, g, x, y, z, h_inv, h_ht, gh_t)
 
 
 def _step(
     problem: MapProblem,
     red: _Reduced,
     ankles: FloatArray,
-    heights: FloatArray,
+    person: FloatArray,
     theta: FloatArray,
     frozen: bool = False,
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -207,12 +216,15 @@ def _step(
     free = problem.layout.estimated
     if not frozen and free.any():
         d_theta[free] = np.linalg.lstsq(red.s[np.ix_(free, free)], -red.g[free], rcond=None)[0]
-    d_h = -(red.g_h + red.h_htheta @ d_theta) / red.h_hh
+    d_p = -(red.h_inv @ (red.g_h + red.h_t @ d_theta)[:, :, None])[:, :, 0]
     track = problem.observations.track
-    d_a = -(red.z + red.y * d_h[track][:, None] + red.x @ d_theta)
+    d_a = -(red.z + (red.y @ d_p[track][:, :, None])[:, :, 0] + red.x @ d_theta)
     lower, upper = problem.layout.bounds()
-    # Deviations beyond -0.9 would be people of a tenth of the height: the prior already says no.
-    return np.clip(theta + d_theta, lower, upper), ankles + d_a, np.clip(heights + d_h, -0.9, 2.0)
+    person = person + d_p
+    # Deviations beyond -0.9 would be people of a tenth of the height, leans beyond 0.5 rad falling over.
+    person[:, 0] = np.clip(person[:, 0], -0.9, 2.0)
+    person[:, 1:] = np.clip(person[:, 1:], -0.5, 0.5)
+    return np.clip(theta + d_theta, lower, upper), ankles + d_a, person
 
 
 def _consider_covariance(layout: Layout, s: FloatArray) -> FloatArray:
@@ -242,34 +254,34 @@ def _consider_covariance(layout: Layout, s: FloatArray) -> FloatArray:
 def fit_map(
     problem: MapProblem,
     theta0: FloatArray,
-    heights0: FloatArray,
+    person0: FloatArray,
     *,
     optimise: bool = True,
     ankles: FloatArray | None = None,
 ) -> MapFit:
-    """Levenberg-Marquardt from theta0 (latent ankles start at the measured ones unless given, heights at
-    heights0); optimise=False only evaluates the covariance there."""
+    """Levenberg-Marquardt from theta0 (latent ankles start at the measured ones unless given, individuals
+    at person0, (T, q)); optimise=False holds theta and only evaluates the covariance there."""
     obs = problem.observations
-    theta, heights = theta0.astype(np.float64), heights0.astype(np.float64)
+    theta, person = theta0.astype(np.float64), person0.astype(np.float64).copy()
     ankles = obs.bottoms_n.copy() if ankles is None else ankles.copy()
     # optimise=False: people still take their best positions and heights for this camera (theta frozen).
-    cost, _ = _cost(problem, theta, ankles, heights)
+    cost = _cost(problem, theta, ankles, person)
     damping = 1e-4
     iterations = 0
     for iterations in range(1, _MAX_ITERATIONS + 1):  # noqa: B007 - the count is reported
-        lin = _linearise(problem, theta, ankles, heights)
+        lin = _linearise(problem, theta, ankles, person)
         converged = True
         for _ in range(12):
-            red = _reduce(problem, lin, theta, heights, damping)
-            candidate = _step(problem, red, ankles, heights, theta, frozen=not optimise)
-            new_cost, _ = _cost(problem, *candidate)
+            red = _reduce(problem, lin, theta, person, damping)
+            candidate = _step(problem, red, ankles, person, theta, frozen=not optimise)
+            new_cost = _cost(problem, *candidate)
             if np.isfinite(new_cost) and new_cost <= cost:
                 # Converged once the step is far below the parameters' own uncertainty (the Newton
-                # decrement in units of the posterior: 1e-16 is a step of 1e-8 sigma) and the people's
-                # steps are as small, or when no step lowers the cost (floating-point noise).
+                # decrement in units of the posterior: 1e-16 is a step of 1e-8 sigma), or when no step
+                # lowers the cost (floating-point noise).
                 d = candidate[0] - theta
-                decrement = float(d @ red.s @ d) + float(np.sum((candidate[2] - heights) ** 2 * red.h_hh))
-                theta, ankles, heights = candidate
+                decrement = float(d @ red.s @ d)
+                theta, ankles, person = candidate
                 cost = new_cost
                 damping = max(damping / 5.0, 1e-9)
                 converged = decrement < _CONVERGED_DECREMENT
@@ -277,20 +289,20 @@ def fit_map(
             damping *= 8.0
         if converged:
             break
-    lin = _linearise(problem, theta, ankles, heights)
-    red = _reduce(problem, lin, theta, heights, 0.0)
+    lin = _linearise(problem, theta, ankles, person)
+    red = _reduce(problem, lin, theta, person, 0.0)
     covariance = _consider_covariance(problem.layout, red.s)
-    person = np.sum(lin.r * lin.r, axis=1)
-    data_cost = float(np.sum(person))
-    dof = max(2 * len(person) - len(theta), 1)
-    r_height = _prior_terms(problem, theta, heights)[1]
+    per_obs = np.sum(lin.r * lin.r, axis=1)
+    data_cost = float(np.sum(per_obs))
+    dof = max(2 * len(per_obs) - len(theta), 1)
+    r_person = _prior_terms(problem, theta, person)[1]
     return MapFit(
         theta=theta,
         covariance=covariance,
         ankles_n=ankles,
-        deviations=heights,
-        person_costs=person,
+        person=person,
+        person_costs=per_obs,
         data_cost=data_cost,
-        variance_factor=(data_cost + float(np.sum(r_height**2))) / dof,
+        variance_factor=(data_cost + float(np.sum(r_person**2))) / dof,
         iterations=iterations,
     )
