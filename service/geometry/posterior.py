@@ -43,8 +43,9 @@ _MAX_LEAN = 0.15
 _MIN_TRACKS_FOR_LEAN = 5
 
 # A person whose whitened residual cost exceeds this (chi^2 with 2 degrees of
-# freedom: 4 residuals minus 2 own ankle parameters, p = 0.999) is not explained
-# by the camera and is dropped before the final fit.
+# freedom: 4 pixel residuals and q prior residuals minus 2 ankle and q own
+# parameters, p = 0.999) is not explained by the camera and is dropped before
+# the final fit.
 _CHI2_2DOF_999 = 13.8
 _CHI2_2DOF_MEDIAN = 1.386
 

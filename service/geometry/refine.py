@@ -50,7 +50,7 @@ class MapFit:
     covariance: FloatArray  # of theta (p x p): the posterior's Gauss-Newton covariance
     ankles_n: FloatArray  # (n, 2) latent ankle keypoints (distorted, noise-free)
     person: FloatArray  # (T, q) each individual's height deviation (h = mu (1 + deviation)) [and lean, rad]
-    person_costs: FloatArray  # (n,) each observation's squared whitened data residuals
+    person_costs: FloatArray  # (n,) each observation's squared whitened residuals and its share of its prior
     data_cost: float  # sum of squared whitened data residuals (without the priors)
     variance_factor: float  # data residuals' mean square per degree of freedom
     iterations: int
@@ -296,12 +296,16 @@ def fit_map(
     data_cost = float(np.sum(per_obs))
     dof = max(2 * len(per_obs) - len(theta), 1)
     r_person = _prior_terms(problem, theta, person)[1]
+    # Each observation's cost includes its share of its individual's prior: a person whose height (or lean)
+    # had to go far from the population's to fit is as suspect as one whose pixels do not fit.
+    track = problem.observations.track
+    share = np.sum(r_person**2, axis=1) / np.bincount(track, minlength=len(person))
     return MapFit(
         theta=theta,
         covariance=covariance,
         ankles_n=ankles,
         person=person,
-        person_costs=per_obs,
+        person_costs=per_obs + share[track],
         data_cost=data_cost,
         variance_factor=(data_cost + float(np.sum(r_person**2))) / dof,
         iterations=iterations,
