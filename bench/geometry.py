@@ -1,9 +1,9 @@
 """Geometry benchmark: Monte Carlo accuracy of calibrate() on simulated scenes (paper Sect. 4.1), and its speed.
 
 Only the public API (calibrate, CalibrationError) and the simulator are used,
-so the numbers describe what a caller gets. A method is a named set of
-CalibrationProblem and SolveOptions fields (METHODS): add a variant there and name it in an
-experiment's method list to benchmark it.
+so the numbers describe what a caller gets. Methods (named calibrate()
+configurations) are in bench.methods, metrics in bench.metrics, the camera
+model's coverage experiment in bench.coverage.
 
 Every trial seeds its scene from (seed, experiment name, trial index) alone,
 so results do not depend on --workers or --only, and all settings and methods
@@ -21,40 +21,27 @@ import warnings
 import zlib
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Executor, ProcessPoolExecutor
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from typing import Any, Final
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
-from bench.simulate import Scene, SceneConfig, draw_scene
-from service.geometry import Calibration, CalibrationError, CalibrationProblem, SolveOptions, calibrate
+from bench.simulate import SceneConfig, draw_scene
+from service.geometry import CalibrationError, calibrate
 
 from . import paper
 from .coverage import MAX_TRIALS, realistic_tables
-from .paper_literal import calibrate_paper_literal
+from .methods import METHODS, Setting, problem_and_options, run_method, without_outliers
+from .metrics import EXTRA_KEYS, METRIC_KEYS, TrialResult
 from .report import ReportTable, fmt, fmt_pair, yes_no
 
 FloatArray = NDArray[np.float64]
 
-# Named CalibrationProblem and SolveOptions fields (split by name). Experiments add the image size, the
-# height prior, equal_focal, the paper's assumptions and the seed; a method's own entries take precedence.
-# "solver": "paper-literal" runs the paper's printed solver instead of calibrate().
-METHODS: dict[str, dict[str, Any]] = {
-    "linear": {"robust": False, "refine": False, "uncertainty": False},
-    "robust": {"robust": True, "refine": False, "uncertainty": False},
-    "default": {},
-    "distortion": {"distortion": True},
-    # The paper's solver as printed (corrected): pixel coordinates, unweighted, people from their depths.
-    "as-printed": {"solver": "paper-literal"},
-}
-
 # The method whose rows the pass/fail targets of the outlier and distance experiments judge.
 TARGET_METHOD: Final = "default"
 
-METRIC_KEYS: Final = ("fx_pct", "fy_pct", "normal_deg", "rho_pct", "points_pct", "dist_pct", "dist_m")
-EXTRA_KEYS: Final = ("inliers_placed_pct", "outliers_placed_pct")
 LABELS: Final = {
     "fx_pct": "fx %",
     "fy_pct": "fy %",
@@ -98,105 +85,7 @@ TIMING_CASES: Final = (
 TIMING_TARGETS_MS: Final = {("linear", 1000): 2.0, ("robust", 1000): 50.0}
 
 
-# --- metrics -----------------------------------------------------------------------------------------------------
-
-
-def relative_error_pct(estimate: float, truth: float) -> float:
-    return 100.0 * abs(estimate - truth) / abs(truth)
-
-
-def angle_deg(a: ArrayLike, b: ArrayLike) -> float:
-    """Angle between two vectors; atan2 keeps full precision near 0, where arccos of the dot product loses ~8 digits."""
-    u, v = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
-    return math.degrees(math.atan2(float(np.linalg.norm(np.cross(u, v))), float(u @ v)))
-
-
-def point_errors_pct(estimate: FloatArray, truth: FloatArray) -> FloatArray:
-    """Per-point ||X^ - X|| / ||X||: normalised so near and far people weigh the same (paper Sect. 4.1)."""
-    return 100.0 * np.linalg.norm(estimate - truth, axis=-1) / np.linalg.norm(truth, axis=-1)
-
-
-def distance_errors(estimate: FloatArray, truth: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """(|d^ - d| / d in %, |d^ - d| in metres) over every unordered pair of people."""
-    i, j = np.triu_indices(len(truth), k=1)
-    d_true = np.linalg.norm(truth[i] - truth[j], axis=-1)
-    d_est = np.linalg.norm(estimate[i] - estimate[j], axis=-1)
-    err_m = np.abs(d_est - d_true)
-    return 100.0 * err_m / d_true, err_m
-
-
-@dataclass(frozen=True)
-class TrialResult:
-    """One calibrate() call on one scene. metrics holds METRIC_KEYS and EXTRA_KEYS; NaN where undefined."""
-
-    metrics: Mapping[str, float] = field(default_factory=dict)
-    failed: bool = False
-    error: str = ""
-    # An exception other than CalibrationError: a bug to report, not a failure of the method.
-    unexpected: bool = False
-
-    @classmethod
-    def failure(cls, error: str, unexpected: bool = False) -> TrialResult:
-        return cls({k: math.nan for k in (*METRIC_KEYS, *EXTRA_KEYS)}, True, error, unexpected)
-
-
-def _true_outliers(scene: Scene) -> NDArray[np.bool_]:
-    n = len(scene.points_bottom)
-    outliers = np.asarray(scene.outliers, dtype=bool)
-    return outliers if outliers.shape == (n,) else np.zeros(n, dtype=bool)
-
-
-def evaluate(scene: Scene, cal: Calibration) -> TrialResult:
-    """Errors of a Calibration against the scene's truth.
-
-    People the scene made outliers have no true position on the model, so they
-    never enter the point or distance errors; of the rest, only those the
-    calibration placed count (how many it placed is reported separately).
-    """
-    normal = np.asarray(cal.normal, dtype=np.float64)
-    camera = np.array([cal.fx, cal.fy, cal.rho, *normal], dtype=np.float64)
-    if not np.all(np.isfinite(camera)):
-        return TrialResult.failure("non-finite camera")
-    outliers = _true_outliers(scene)
-    x_b, x_t = np.asarray(cal.points_bottom, dtype=np.float64), np.asarray(cal.points_top, dtype=np.float64)
-    placed = np.asarray(cal.inliers, dtype=bool) & np.all(np.isfinite(x_b), axis=1) & np.all(np.isfinite(x_t), axis=1)
-    use = placed & ~outliers
-    if not use.any():
-        return TrialResult.failure("no true inlier placed")
-    points = np.concatenate(
-        (point_errors_pct(x_b[use], scene.points_bottom[use]), point_errors_pct(x_t[use], scene.points_top[use]))
-    )
-    dist_pct, dist_m = distance_errors(x_b[use], scene.points_bottom[use])
-    metrics = {
-        "fx_pct": relative_error_pct(cal.fx, scene.fx),
-        "fy_pct": relative_error_pct(cal.fy, scene.fy),
-        "normal_deg": angle_deg(normal, scene.normal),
-        "rho_pct": relative_error_pct(cal.rho, scene.rho),
-        "points_pct": float(points.mean()),
-        "dist_pct": float(dist_pct.mean()) if dist_pct.size else math.nan,
-        "dist_m": float(dist_m.mean()) if dist_m.size else math.nan,
-        "inliers_placed_pct": 100.0 * use.sum() / max(int((~outliers).sum()), 1),
-        "outliers_placed_pct": 100.0 * (placed & outliers).sum() / outliers.sum() if outliers.any() else math.nan,
-    }
-    if not all(math.isfinite(metrics[k]) for k in ("fx_pct", "fy_pct", "normal_deg", "rho_pct", "points_pct")):
-        return TrialResult.failure("non-finite result")
-    return TrialResult(metrics)
-
-
 # --- trials --------------------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Setting:
-    """One column of a table: what scenes to draw and how to call calibrate() on them."""
-
-    label: str
-    config: SceneConfig
-    equal_focal: bool = False
-    # Calibrate on the scene's true inliers only: what perfect outlier rejection would achieve.
-    drop_outliers: bool = False
-    # CalibrationProblem fields this setting's scenes justify (e.g. exact heights on noise-free scenes).
-    problem: Mapping[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -205,70 +94,6 @@ class Trial:
     methods: tuple[tuple[str, Mapping[str, Any]], ...]
     entropy: int
     key: tuple[int, ...]
-
-
-def without_outliers(scene: Scene) -> Scene:
-    keep = ~_true_outliers(scene)
-    return replace(
-        scene,
-        points_bottom=scene.points_bottom[keep],
-        points_top=scene.points_top[keep],
-        heights=scene.heights[keep],
-        tops_px=scene.tops_px[keep],
-        bottoms_px=scene.bottoms_px[keep],
-        outliers=np.zeros(int(keep.sum()), dtype=bool),
-    )
-
-
-def paper_assumptions(image_size: tuple[float, float]) -> dict[str, Any]:
-    """What the paper's protocol assumes (and its simulator draws): the principal point at the image centre,
-    no lens, square or known-aspect pixels, the crowd's mean height known, an unbiased pose model, ankles on
-    the ground. The paper's tables are run under them so that they compare solvers, not camera models
-    (bench.coverage measures the camera model on real cameras' mismatches)."""
-    return {
-        "principal_point_px": (image_size[0] / 2.0, image_size[1] / 2.0),
-        "aspect_std": 0.0,
-        "lens_corner_std": 0.0,
-        "mean_height_std": 0.0,
-        "keypoint_bias_std": 0.0,
-        "ankle_height_m": 0.0,
-    }
-
-
-def problem_and_options(
-    image_size: tuple[float, float], height_m: float, equal_focal: bool, method: Mapping[str, Any], seed: int
-) -> tuple[CalibrationProblem, SolveOptions]:
-    """A method's entries split into the problem's and the options' fields (under the paper's assumptions,
-    which a method's own entries override); TypeError for any other name."""
-    problem_fields = {f.name for f in fields(CalibrationProblem)}
-    problem: dict[str, Any] = {
-        "image_size_px": image_size,
-        "height_m": height_m,
-        "equal_focal": equal_focal,
-        **paper_assumptions(image_size),
-    }
-    options: dict[str, Any] = {"seed": seed}
-    for key, value in method.items():
-        (problem if key in problem_fields else options)[key] = value
-    return CalibrationProblem(**problem), SolveOptions(**options)
-
-
-def run_method(scene: Scene, setting: Setting, method: Mapping[str, Any], seed: int) -> TrialResult:
-    height_m = setting.config.height_mean_m
-    try:
-        if method.get("solver") == "paper-literal":
-            cal = calibrate_paper_literal(
-                scene.tops_px, scene.bottoms_px, scene.image_size, height_m, setting.equal_focal
-            )
-        else:
-            merged = {**setting.problem, **method}
-            problem, options = problem_and_options(scene.image_size, height_m, setting.equal_focal, merged, seed)
-            cal = calibrate(scene.tops_px, scene.bottoms_px, problem, options)
-    except CalibrationError as exc:
-        return TrialResult.failure(str(exc))
-    except Exception as exc:  # a worker must not die: one bug would lose every other trial's result
-        return TrialResult.failure(f"{type(exc).__name__}: {exc}", unexpected=True)
-    return evaluate(scene, cal)
 
 
 def run_trial(trial: Trial) -> tuple[TrialResult, ...]:
@@ -636,7 +461,7 @@ def _distortion(ctx: _Context) -> list[ReportTable]:
         for k1 in (0.0, 0.05, -0.05, -0.15)
         for noise in (0.0, 2.0)
     ]
-    methods = ("default", "distortion")
+    methods = ("no-lens", "default")
     results = ctx.run("distortion", settings, methods, max_trials=DISTORTION_MAX_TRIALS)
     keys = ("fx_pct", "normal_deg", "rho_pct", "dist_pct")
     table = ReportTable(
@@ -650,8 +475,9 @@ def _distortion(ctx: _Context) -> list[ReportTable]:
         table.end_section()
     table.notes.append(
         f"{min(ctx.options.trials, DISTORTION_MAX_TRIALS)} trials per setting (the k search is the slowest step). "
-        "Mean (median). 'distortion' = SolveOptions(distortion=True): a one-parameter division model fitted to a "
-        "different (polynomial) lens, kept at k = 0 unless significant."
+        "Mean (median). 'default' estimates a one-parameter division model (a different model from the "
+        "simulated polynomial lens), kept at k = 0 unless significant and material; 'no-lens' = "
+        "SolveOptions(distortion=False)."
     )
     return [table]
 
