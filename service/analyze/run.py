@@ -23,6 +23,7 @@ import numpy as np
 from service.domain import PersonIn
 from service.frames.keypoints import people_from_detections
 from service.frames.measure import measure_people
+from service.geometry import SolveOptions
 from service.geometry.evidence import EvidenceSolve, solve_evidence
 from service.pose.types import PoseEstimator
 
@@ -83,15 +84,15 @@ def calibrate_frames(
 ) -> tuple[Evidence, EvidenceSolve]:
     """One solve on the usable people of every frame."""
     evidence = Evidence.of(frames)
+    # Frame times link one person's observations into one individual (service.geometry.tracks).
+    times = [frames[position].time_s for position, _ in evidence.owners]
     solve = solve_evidence(
         evidence.tops_px,
         evidence.bottoms_px,
-        image_size_px,
-        options.height_m,
-        equal_focal=options.equal_focal,
-        focal_px=options.focal_px,
-        distortion=options.distortion,
+        options.problem(image_size_px),
+        SolveOptions(distortion=options.distortion),
         cap=options.sample_cap,
+        times_s=None if any(t is None for t in times) else np.array(times, dtype=float),
     )
     return evidence, solve
 

@@ -22,7 +22,7 @@ from service.calibration.repository import add_calibration, current_calibration
 from service.cameras.repository import CameraNotFoundError
 from service.domain import DONE, FAILED, GONE, SKIPPED, CalibrationValues
 from service.frames.repository import pending_frames
-from service.geometry import Calibration, Uncertainty
+from service.geometry import Calibration, CalibrationProblem, Uncertainty
 from service.geometry.evidence import solve_evidence
 from service.observability.logs import JOBS_LOGGER
 from service.settings import Settings
@@ -135,9 +135,8 @@ def solve_camera(settings: Settings, dispatcher: RedisDispatcher, camera_id: str
 
     started = time.perf_counter()
     # The sample is already capped and balanced by the store; repeats (still people, a mannequin) count once.
-    solve = solve_evidence(
-        sample.tops_px, sample.bottoms_px, image_size, height_m, equal_focal=equal_focal, focal_px=known_focal_px
-    )
+    problem = CalibrationProblem(image_size, height_m, equal_focal=equal_focal, focal_px=known_focal_px)
+    solve = solve_evidence(sample.tops_px, sample.bottoms_px, problem)
     people_used = solve.people_used
     duration_s = time.perf_counter() - started
     if solve.calibration is not None:
