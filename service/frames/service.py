@@ -11,8 +11,9 @@ import time
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
+from service.calibration.camera_model import calibration_from_version
 from service.calibration.repository import current_calibration
-from service.calibration.service import calibration_due, calibration_from_version
+from service.calibration.service import calibration_due
 from service.domain import DONE, GONE, PENDING, FrameOutcome, PersonIn, StoredCentres
 from service.frames.keypoints import person_from_centres, person_from_keypoints
 from service.frames.measure import FrameComputation, measure_people
@@ -107,6 +108,7 @@ def compute_frame_result(
         distance_threshold_m=distance_threshold_m,
         calibration_version=calibration.version,
         noise_px=calibration.noise_px or 0.0,
+        calibration_grade=calibration.quality_grade,
     )
 
 
