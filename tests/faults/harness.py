@@ -34,6 +34,7 @@ from rq.registry import StartedJobRegistry
 from bench.simulate import Scene, SceneConfig, draw_scene
 from service.embedded_redis import redis_server_binary
 from service.http.problems import PROBLEM_MEDIA_TYPE
+from tests.support.jobs import FRAME_SPACING_S
 from tests.support.serving import REPO, free_port, stop
 
 # Generous: a loaded two-core CI machine runs these next to everything else.
@@ -155,7 +156,7 @@ class SimulatedCamera:
         frame_id = f"{self.camera_id}-{k}"
         self.frame_ids.append(frame_id)
         return {
-            "timestamp": (START + timedelta(seconds=k)).isoformat(),
+            "timestamp": (START + timedelta(seconds=FRAME_SPACING_S * k)).isoformat(),
             "frame_id": frame_id,
             "people": [
                 {"shoulder": [float(t[0]), float(t[1])], "ankle": [float(b[0]), float(b[1])]}

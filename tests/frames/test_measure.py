@@ -53,4 +53,6 @@ def test_no_people_is_an_empty_result() -> None:
         "people": [],
         "pairs": [],
         "violations": [],
+        "calibration_grade": None,
+        "alerts_suppressed": None,
     }
