@@ -6,6 +6,7 @@ from datetime import datetime
 from typing import Annotated, Literal
 
 from pydantic import BaseModel, Field, StrictBool, model_validator
+from pydantic_core import PydanticCustomError
 
 from service.domain import METRES_PER_FOOT
 from service.geometry import DEFAULT_HEIGHT_M
@@ -16,6 +17,9 @@ MAX_IMAGE_SIDE_PX = 100_000
 # fisheye (beyond what a pinhole with OpenCV's five coefficients describes), 50 x a 2-degree telephoto.
 FOCAL_RANGE_OF_IMAGE_SIDE = (0.05, 50.0)
 DEFAULT_CAMERA_HEIGHT_TOLERANCE_M = 0.1
+
+# The error type of intrinsics that do not fit the image: valid on their own, refused for this image size.
+INTRINSICS_OUT_OF_IMAGE = "intrinsics_out_of_image"
 
 PositiveFocal = Annotated[float, Field(gt=0, allow_inf_nan=False, strict=True)]
 
@@ -112,15 +116,19 @@ class CameraSettings(StrictModel):
         if self.principal_point_px is not None:
             cx, cy = self.principal_point_px
             if not (0 <= cx <= width and 0 <= cy <= height):
-                raise ValueError(f"principal_point_px ({cx:g}, {cy:g}) lies outside the {width}x{height} image")
+                raise PydanticCustomError(
+                    INTRINSICS_OUT_OF_IMAGE,
+                    f"principal_point_px ({cx:g}, {cy:g}) lies outside the {width}x{height} image",
+                )
         focal = self.known_focal_xy_px
         if focal is not None:
             low, high = (factor * max(width, height) for factor in FOCAL_RANGE_OF_IMAGE_SIDE)
             if not all(low <= f <= high for f in focal):
-                raise ValueError(
+                raise PydanticCustomError(
+                    INTRINSICS_OUT_OF_IMAGE,
                     f"known_focal_px {focal[0]:g}, {focal[1]:g} must lie within {low:g}-{high:g} px for a "
                     f"{width}x{height} image ({FOCAL_RANGE_OF_IMAGE_SIDE[0]:g}-{FOCAL_RANGE_OF_IMAGE_SIDE[1]:g} "
-                    "x its longer side)"
+                    "x its longer side)",
                 )
         return self
 
