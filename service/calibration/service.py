@@ -133,8 +133,10 @@ def solve_camera(settings: Settings, dispatcher: RedisDispatcher, camera_id: str
         sample = evidence.sample_evidence(session, camera_id, cap=settings.calibration_sample_cap)
         evidence_count = int(camera.usable_evidence_count)
         height_m = camera.person_height_m
+        problem: CalibrationProblem | None = None
+        problem_error = ""
         try:
-            problem: CalibrationProblem | None = problem_for(camera)
+            problem = problem_for(camera)
         except (CalibrationError, ValueError) as exc:
             problem, problem_error = None, str(exc)
 
