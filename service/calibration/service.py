@@ -24,8 +24,9 @@ from service.calibration.repository import add_calibration, current_calibration
 from service.cameras.repository import CameraNotFoundError
 from service.domain import DONE, FAILED, GONE, SKIPPED, CalibrationValues
 from service.frames.repository import pending_frames
-from service.geometry import CalibrationError, CalibrationProblem
+from service.geometry import Calibration, CalibrationError, CalibrationProblem
 from service.geometry.evidence import EvidenceSolve, solve_evidence
+from service.geometry.quality import MIN_INDIVIDUALS
 from service.observability.logs import JOBS_LOGGER
 from service.settings import Settings
 from service.store.models import CalibrationVersion, Camera, clip_reason
@@ -96,6 +97,25 @@ def at_least_as_supported(new: CalibrationValues, current: CalibrationVersion) -
     return new_fx <= current_fx and _normal_std_deg(new.normal_std_deg) <= _normal_std_deg(current.normal_std_deg)
 
 
+def too_thin(cal: Calibration) -> str | None:
+    """Why a solve rests on too few distinct people to be reported as a calibration (None: it does not).
+
+    The geometry refuses a camera only when the people leave the focal length undetermined; between that and
+    MIN_INDIVIDUALS it grades the solve `unreliable`. The service goes further for thin evidence: a posterior
+    from a dozen people is far from Gaussian, so its sigma cannot be trusted either, and such a camera is not
+    reported as calibrated at all (the solve is kept in the history as failed, and frames wait). Other reasons
+    for `unreliable` (people at one distance, in a corner of the view, a wide predicted error) leave a
+    calibration that measures, with its wide sigma, but raises no alerts.
+    """
+    individuals = cal.individuals or cal.num_inliers
+    if individuals >= MIN_INDIVIDUALS:
+        return None
+    return (
+        f"too thin to calibrate: only {individuals} distinct people agree (at least {MIN_INDIVIDUALS} are needed); "
+        "more people, spread over the view and over distances, or the camera's known intrinsics"
+    )
+
+
 def key_camera_evidence(settings: Settings, camera_id: str) -> int:
     """Key every person the camera stored since its last solve, in short transactions; returns how many."""
     total, chunk = 0, KEY_CHUNK
@@ -149,6 +169,9 @@ def solve_camera(settings: Settings, dispatcher: RedisDispatcher, camera_id: str
         solve = solve_evidence(sample.tops_px, sample.bottoms_px, problem, times_s=sample.times_s)
     people_used = solve.people_used
     duration_s = time.perf_counter() - started
+    thin = None if solve.calibration is None else too_thin(solve.calibration)
+    if thin is not None:
+        solve = EvidenceSolve(solve.used, None, thin)
     if solve.calibration is not None and problem is not None:
         values = replace(
             CalibrationValues.from_solution(
