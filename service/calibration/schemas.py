@@ -165,9 +165,8 @@ class CalibrationStatus(BaseModel):
     (both shoulders and both ankles seen, not at the image border) must arrive before the next solve.
     `calibrating`: enough evidence for a solve that has not produced a current calibration yet.
     `calibrated`: the fields below describe the current version; `quality.grade` says what it is worth (an
-    `unreliable` one measures but raises no violations). A solve on evidence too thin to determine the focal
-    length (fewer than 5 distinct people, say) is refused: it stays in the history as failed, and the camera is
-    not reported as calibrated.
+    `unreliable` one measures but raises no violations). A solve on fewer than 15 distinct people is too thin to
+    report: it stays in the history as failed (`last_failure` says so), and the camera is not calibrated by it.
     """
 
     camera_id: str

@@ -44,6 +44,11 @@ PEOPLE_PER_FRAME = 10
 FRAME_SPACING_S = 2 * MAX_GAP_S
 
 
+def frame_timestamp(k: int) -> str:
+    """The RFC 3339 timestamp of a simulated camera's k-th frame, FRAME_SPACING_S apart from 2026-01-01T12:00Z."""
+    return (datetime(2026, 1, 1, 12, tzinfo=UTC) + timedelta(seconds=FRAME_SPACING_S * k)).isoformat()
+
+
 @pytest.fixture(scope="session")
 def redis_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[EmbeddedRedis]:
     server = EmbeddedRedis(tmp_path_factory.mktemp("redis")).start()
