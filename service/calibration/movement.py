@@ -39,7 +39,8 @@ package's API without depending on its internals.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import io
+from dataclasses import dataclass, fields
 
 import numpy as np
 from scipy.stats import norm
@@ -79,6 +80,28 @@ class ReferenceCamera:
     """log(person height / camera height): the implied height (in camera heights) the calibration expects."""
     lean_rad: float = np.radians(2.0)
     """Spread of people's lean from the vertical (and of the pose model's shoulder-over-ankle bias)."""
+
+    @classmethod
+    def of(
+        cls,
+        intrinsics_px: tuple[float, float, float, float],
+        normal: tuple[float, float, float],
+        *,
+        rho_m: float,
+        person_height_m: float,
+        height_std_m: float,
+        noise_px: float | None,
+    ) -> ReferenceCamera:
+        """The reference for a solved camera: (fx, fy, cx, cy), its ground normal and height, the people's prior
+        height and spread, and the keypoint noise the solve measured (1 px when it measured none)."""
+        unit = np.asarray(normal, dtype=float) / np.linalg.norm(normal)
+        return cls(
+            *(float(v) for v in intrinsics_px),
+            normal=(float(unit[0]), float(unit[1]), float(unit[2])),
+            noise_px=float(noise_px) if noise_px else 1.0,
+            height_spread=height_std_m / person_height_m,
+            log_height=float(np.log(person_height_m / rho_m)),
+        )
 
     def tangent_basis(self) -> tuple[FloatArray, FloatArray]:
         """Two unit vectors perpendicular to the normal: the tilts theta[1], theta[2] move the normal along them."""
@@ -298,6 +321,22 @@ class MovementMonitor:
             [],
             np.zeros(0),
         )
+
+    def to_bytes(self) -> bytes:
+        """The state without its camera (the caller rebuilds that from the calibration it belongs to)."""
+        arrays = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in ("camera", "frame_ids")}
+        buffer = io.BytesIO()
+        np.savez(buffer, frame_ids=np.array([i.hex() for i in self.frame_ids], dtype=str), **arrays)
+        return buffer.getvalue()
+
+    @classmethod
+    def from_bytes(cls, camera: ReferenceCamera, data: bytes) -> MovementMonitor:
+        with np.load(io.BytesIO(data), allow_pickle=False) as stored:
+            values = {name: stored[name] for name in stored.files}
+        frame_ids = [bytes.fromhex(str(i)) for i in values.pop("frame_ids")]
+        values["ref_frames"] = float(values["ref_frames"])
+        values["last_statistic"] = float(values["last_statistic"])
+        return cls(camera=camera, frame_ids=frame_ids, **values)
 
     @property
     def window_start(self) -> int:

@@ -79,7 +79,7 @@ def apply_settings(session: Session, camera_id: str, body: CameraSettings) -> Se
     if old is not None:
         if old[:2] != (body.image_width_px, body.image_height_px):
             was_calibrated = current_calibration(session, camera_id) is not None
-            reset_calibration(session, camera_id, drop_evidence=True)
+            reset_calibration(session, camera_id, drop_evidence=True, reason="image_size_changed")
             if was_calibrated:
                 deliveries = status_changed_deliveries(session, camera_id, None, "calibrated", "image size changed")
         elif old[2:] != (body.person_height_m, body.equal_focal, body.known_focal_px):

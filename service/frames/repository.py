@@ -127,23 +127,37 @@ def _insert_observations(session: Session, camera_id: str, rows: Sequence[dict[s
     """Insert a frame's people and count its usable ones on the camera (the counter that drives re-solves)."""
     if not rows:
         return
+    _set_epochs(rows, _count_evidence(session, {camera_id: sum(1 for row in rows if row["usable"])}))
     session.execute(insert(_OBSERVATIONS), rows)
-    _count_evidence(session, {camera_id: sum(1 for row in rows if row["usable"])})
 
 
 _COUNT_EVIDENCE = (
     update(_CAMERAS)
     .where(_CAMERAS.c.id == bindparam("camera"))
     .values(usable_evidence_count=_CAMERAS.c.usable_evidence_count + bindparam("usable"))
+    .returning(_CAMERAS.c.epoch)
 )
 
 
-def _count_evidence(session: Session, usable: dict[str, int]) -> None:
-    """Add newly stored usable people to their cameras' counters: one Core statement, executed once per camera by
-    the driver (executemany), inside the writer's transaction, which holds SQLite's one write lock."""
-    rows = [{"camera": camera_id, "usable": n} for camera_id, n in usable.items() if n]
-    if rows:
-        session.execute(_COUNT_EVIDENCE, rows)
+def _count_evidence(session: Session, usable: dict[str, int]) -> dict[str, int]:
+    """Add newly stored usable people to their cameras' counters, before they are inserted, and return each
+    camera's calibration epoch, which its people join.
+
+    The epoch is read by the statement that takes the camera row's lock (PostgreSQL re-reads a row another
+    transaction changed before it updates it), so people stored while a move or reset opens the next epoch
+    (service.calibration.repository, which locks the same row) are never counted in one epoch and stored in
+    another. Inside the writer's transaction, which holds SQLite's one write lock."""
+    epochs = {}
+    for camera_id, n in usable.items():
+        epoch = session.execute(_COUNT_EVIDENCE, {"camera": camera_id, "usable": n}).scalar_one_or_none()
+        if epoch is not None:  # a camera deleted meanwhile: the insert's foreign key refuses its rows
+            epochs[camera_id] = epoch
+    return epochs
+
+
+def _set_epochs(rows: Sequence[dict[str, Any]], epochs: dict[str, int]) -> None:
+    for row in rows:
+        row["epoch"] = epochs.get(row["camera_id"], 1)
 
 
 def _frame_by_client_id(session: Session, camera_id: str, client_frame_id: str) -> Frame | None:
@@ -246,8 +260,8 @@ def add_keypoint_frames(
     if frame_rows:
         session.execute(insert(_FRAMES), frame_rows)
     if observation_rows:
+        _set_epochs(observation_rows, _count_evidence(session, usable))
         session.execute(insert(_OBSERVATIONS), observation_rows)
-    _count_evidence(session, usable)
     for frame, created in results:
         if created:
             _attach_inserted(session, frame)
@@ -469,7 +483,8 @@ def frames_observations(session: Session, frame_ids: Sequence[uuid.UUID]) -> dic
 
 
 def frames_points(session: Session, frame_ids: Sequence[uuid.UUID]) -> dict[uuid.UUID, list[Row[Any]]]:
-    """Several frames' people as light rows of their centres (`shoulder_x_px` ... `ankle_y_px`), posted order.
+    """Several frames' people as light rows of their centres (`shoulder_x_px` ... `ankle_y_px`) and whether they
+    are usable evidence (`usable`), posted order.
 
     What measuring needs, and all it needs: building full ORM objects for a worker's batch (a thousand people)
     cost more than measuring them.
@@ -485,6 +500,7 @@ def frames_points(session: Session, frame_ids: Sequence[uuid.UUID]) -> dict[uuid
             columns.shoulder_y_px,
             columns.ankle_x_px,
             columns.ankle_y_px,
+            columns.usable,
         )
         .where(columns.frame_id.in_(frame_ids))
         .order_by(columns.frame_id, columns.person_index)

@@ -11,7 +11,8 @@ import time
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
-from service.calibration.repository import current_calibration
+from service.calibration import moves
+from service.calibration.repository import current_calibration, movement_state
 from service.calibration.service import calibration_due, calibration_from_version
 from service.domain import DONE, GONE, PENDING, FrameOutcome, PersonIn, StoredCentres
 from service.frames.keypoints import person_from_centres, person_from_keypoints
@@ -142,6 +143,8 @@ def frame_outcome(
 def measure_pending(settings: Settings, dispatcher: RedisDispatcher, camera_id: str) -> str:
     """Answer the camera's pending frames with its current calibration, a chunk at a time; then nudge a solve.
 
+    Each chunk is first shown to the movement test (service.calibration.moves): when it finds that the camera
+    moved, the frames from the move on stay pending for the new epoch's calibration and the rest are measured.
     An uncalibrated camera leaves its frames pending: the first calibration asks for them to be measured, so they
     are answered then (recomputed, not dropped). After FRAMES_JOB_BUDGET_S this stops and queues its own re-run,
     so a camera with a backlog shares the workers with the others. Each chunk's results are committed with their
@@ -161,15 +164,23 @@ def measure_pending(settings: Settings, dispatcher: RedisDispatcher, camera_id: 
                 break
             frames = pending_frames(session, camera_id, limit=FRAMES_CHUNK)
             people = frames_points(session, [frame.id for frame in frames])
-        outcomes = [frame_outcome(frame, people.get(frame.id, []), camera, calibration) for frame in frames]
-        if outcomes:
+            stored_test = movement_state(session, camera_id) if frames else None
+        watched = moves.watch(calibration, stored_test, frames, people) if frames else None
+        moved_at = None if watched is None else watched.moved_at
+        measured = [frame for frame in frames if moved_at is None or frame.timestamp < moved_at]
+        outcomes = [frame_outcome(frame, people.get(frame.id, []), camera, calibration) for frame in measured]
+        if frames:
             with transaction(settings) as session:
                 record_frame_outcomes(session, outcomes)
-                client_ids = {frame.id: frame.client_frame_id for frame in frames}
+                client_ids = {frame.id: frame.client_frame_id for frame in measured}
                 deliveries = violation_deliveries(session, camera, outcomes, settings, client_frame_ids=client_ids)
+                deliveries += moves.keep_watch(session, camera, calibration, watched)  # type: ignore[arg-type]
             announce(dispatcher, deliveries)
-        for frame, measured in zip(frames, outcomes, strict=True):
-            _log_measured(frame, measured)
+        for frame, answered in zip(measured, outcomes, strict=True):
+            _log_measured(frame, answered)
+        if moved_at is not None:
+            outcome = PENDING  # uncalibrated in the new epoch: its first solve has the frames measured
+            break
         if len(frames) < FRAMES_CHUNK:
             break
         if time.monotonic() > deadline:
