@@ -13,11 +13,11 @@ Gauss-Newton step per frame. What it cannot see, and need not: a pure pan about 
 (K, N and rho unchanged: people's geometry is identical, distances stay right), a sideways shift of the camera
 (the same), and a change of camera height alone (indistinguishable from a taller crowd; every height is measured
 relative to the frame's typical adult). Children, sitting people and odd detections give large height residuals but
-ordinary directions: direction residuals are clipped (Huber), and a height residual beyond HEIGHT_REJECT_Z standard
-deviations says nothing at all (a redescending score), so neither one odd person nor a school class passing as a
-group moves the test. The frame's typical adult is a robust location started at the calibration's own prediction
-(person height / camera height) and refined on the people near it, so a frame that is half children keeps the
-adults' location instead of the median's.
+ordinary directions: direction residuals are clipped (Huber), and a height more than HEIGHT_REJECT_Z standard
+deviations short says nothing at all (a redescending score on that side only), so neither one odd person nor a
+school class passing as a group moves the test. The frame's typical adult is a robust location started at the
+calibration's own prediction (person height / camera height) and refined on the people near it, so a frame that is half
+children keeps the adults' location instead of the median's.
 
 The test. Per frame the clipped score s_k = -sum J' psi(z) and information I_k = sum J'J (J: the standardised
 Jacobian of the residuals in theta) are kept for the last WINDOW_FRAMES frames; older frames are pooled into a
@@ -40,10 +40,10 @@ package's API without depending on its internals.
 from __future__ import annotations
 
 import io
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
-from scipy.stats import norm
+from scipy.stats import chi2, norm
 
 from service.geometry.frame import FloatArray
 
@@ -53,9 +53,11 @@ HUBER_C = 2.0
 _TAIL = 2 * norm.sf(HUBER_C)
 HUBER_KAPPA = float((1 - _TAIL) - 2 * HUBER_C * norm.pdf(HUBER_C) + HUBER_C**2 * _TAIL)
 HUBER_GAMMA = float(1 - _TAIL)
-# A height residual beyond this many standard deviations is a child, a sitting person or a detection error, not
-# evidence about the camera (about 1 in 16 000 adults under the model). The score's variance and slope above are
-# the Huber ones: the rejection changes them by less than 0.1 %.
+# A person shorter than the calibration expects by more than this many standard deviations is a child, a sitting
+# person or a detection error, not evidence about the camera (about 1 in 32 000 adults under the model); taller
+# ones are clipped like directions, not rejected, since no crowd is that much taller and a camera that tilted or
+# zoomed makes half its people look taller, which is most of what a large move shows. The score's variance and
+# slope above are the Huber ones: the rejection changes them by less than 0.1 %.
 HEIGHT_REJECT_Z = 4.0
 # Finite-difference steps: theta, and pixels for the keypoint-noise propagation.
 _THETA_STEP = 1e-6
@@ -241,7 +243,7 @@ def frames_evidence(
     zj = jacobian / sigma[None]  # (3, P, 2) standardised Jacobian
     scores = np.zeros((frames, 3))
     information = np.zeros((frames, 3, 3))
-    psi = np.stack((_huber(z[:, 0]), np.where(np.abs(z[:, 1]) <= HEIGHT_REJECT_Z, _huber(z[:, 1]), 0.0)), -1)
+    psi = np.stack((_huber(z[:, 0]), np.where(z[:, 1] >= -HEIGHT_REJECT_Z, _huber(z[:, 1]), 0.0)), -1)
     person_score = -np.einsum("qpc,pc->pq", zj, psi)  # (P, 3)
     person_info = np.einsum("qpc,rpc->pqr", zj, zj)  # (P, 3, 3)
     np.add.at(scores, frame_index, person_score)
@@ -256,11 +258,22 @@ MIN_REFERENCE_FRAMES = 30
 MIN_FRAMES_AFTER = 3
 REFERENCE_HALF_LIFE_FRAMES = 3600.0
 INFLATION_HALF_LIFE_FRAMES = 3600.0
-# The inflation before the reference has said anything, and its weight in windows: conservative (the same person
-# seen in every frame of a window would give m; walking crowds measured 1.6 at m = 1 and 16 at m = 60).
-PRIOR_INFLATION = tuple(2.0 + 0.5 * m for m in LENGTHS)
+# The inflation before the reference has said anything, and its weight in windows. The same person seen in every
+# frame of a window would give m; the street of bench.movement (2 fps, people in view for about 30 s, persistent
+# leans) measured 0.6-0.7 at m = 1, 1.5-2.1 at m = 4, 4.3-6.2 at m = 16 and 9-12 at m = 64 over 25 minutes: the
+# prior lies above all of them.
+PRIOR_INFLATION = tuple(1.2 + 0.2 * m for m in LENGTHS)
 PRIOR_WEIGHT = 20.0
 THRESHOLD = 30.0
+# g_j within this of the best (chi-square(3) at 99 %), or at least this share of it, is in the change point's
+# confidence set.
+CHANGE_POINT_MARGIN = float(chi2.ppf(0.99, 3))
+CHANGE_POINT_SHARE = 0.5
+# The largest change of theta (log focal scale, tilts in radians) a newer calibration may bring for the test to be
+# moved onto it rather than started again: 5 % in focal length, 2.9 degrees of tilt (second-order error 0.1 %).
+# Solves of one epoch differ by more only while they rest on few people; a solve that pools a move's first frames
+# with thousands before it moves far less.
+REBASE_LIMIT = 0.05
 
 
 @dataclass(frozen=True)
@@ -323,20 +336,44 @@ class MovementMonitor:
         )
 
     def to_bytes(self) -> bytes:
-        """The state without its camera (the caller rebuilds that from the calibration it belongs to)."""
+        """The whole state, its reference camera included, as bytes to keep between measuring jobs."""
         arrays = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in ("camera", "frame_ids")}
+        c = self.camera
+        camera = np.array([c.fx, c.fy, c.cx, c.cy, *c.normal, c.noise_px, c.height_spread, c.lean_rad, c.log_height])
         buffer = io.BytesIO()
-        np.savez(buffer, frame_ids=np.array([i.hex() for i in self.frame_ids], dtype=str), **arrays)
+        np.savez(buffer, camera=camera, frame_ids=np.array([i.hex() for i in self.frame_ids], dtype=str), **arrays)
         return buffer.getvalue()
 
     @classmethod
-    def from_bytes(cls, camera: ReferenceCamera, data: bytes) -> MovementMonitor:
+    def from_bytes(cls, data: bytes) -> MovementMonitor:
         with np.load(io.BytesIO(data), allow_pickle=False) as stored:
             values = {name: stored[name] for name in stored.files}
+        fx, fy, cx, cy, n0, n1, n2, noise, spread, lean, log_height = (float(v) for v in values.pop("camera"))
+        camera = ReferenceCamera(fx, fy, cx, cy, (n0, n1, n2), noise, spread, log_height, lean)
         frame_ids = [bytes.fromhex(str(i)) for i in values.pop("frame_ids")]
         values["ref_frames"] = float(values["ref_frames"])
         values["last_statistic"] = float(values["last_statistic"])
         return cls(camera=camera, frame_ids=frame_ids, **values)
+
+    def rebased(self, camera: ReferenceCamera) -> MovementMonitor:
+        """The same test against another reference camera (a newer calibration of the same epoch).
+
+        Starting again would build the new reference from whatever frames come next, which absorbs a move made
+        just before the new version became current. Instead every kept score is moved to the new reference: to
+        first order a score is gamma I (theta - theta_ref), so a reference shifted by d takes gamma I d off each
+        (the information and the variance-inflation windows, centred already, stay as they are). First order only
+        holds for a small shift: a reference further than REBASE_LIMIT from the new one (the rough first solves of
+        an epoch, tens of people) is dropped and the test starts again.
+        """
+        d = self.camera.offset_of(camera.fx, camera.fy, np.asarray(camera.normal))
+        if np.max(np.abs(d)) > REBASE_LIMIT:
+            return MovementMonitor.start(camera)
+        return replace(
+            self,
+            camera=camera,
+            ref_score=self.ref_score - HUBER_GAMMA * self.ref_information @ d,
+            scores=self.scores - HUBER_GAMMA * self.information @ d,
+        )
 
     @property
     def window_start(self) -> int:
@@ -386,15 +423,23 @@ class MovementMonitor:
     def statistic(self) -> tuple[float, int]:
         """(max_j g_j over candidates with MIN_FRAMES_AFTER frames after them, the change point): (0, -1) when
         untestable. A camera that moved stays moved, while a single odd frame (a burst of bad detections) does not,
-        hence the minimum; the change point is the best candidate of all, so a move seen in its first frames is
-        not placed before them."""
+        hence the minimum.
+
+        The change point is the earliest candidate whose g_j comes within CHANGE_POINT_MARGIN of the best, or
+        reaches CHANGE_POINT_SHARE of it (whichever reaches further back): a generous confidence set for the first
+        frame of the new view, dated at its start. Frames of a large move saturate
+        the clipped scores, so g_j is flat over the frames after the move and its maximum alone can land well
+        after it; frames dated after the change point are measured again in the new epoch, so erring early costs
+        a few frames of the old view re-measured, erring late would leave new-view frames measured with the old
+        calibration."""
         g, lengths, positions = self._candidates()
         if len(g) == 0:
             return 0.0, -1
         sustained = lengths >= MIN_FRAMES_AFTER
         if not sustained.any():
             return 0.0, -1
-        return float(g[sustained].max()), int(positions[np.argmax(g)])
+        near_best = np.flatnonzero(g >= min(g.max() - CHANGE_POINT_MARGIN, CHANGE_POINT_SHARE * g.max()))
+        return float(g[sustained].max()), int(positions[near_best[0]])
 
     def _candidates(self) -> tuple[FloatArray, np.ndarray, np.ndarray]:
         """g_j, the window length after j, and j's history position, for every testable candidate j."""

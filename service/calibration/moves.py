@@ -3,8 +3,8 @@ service.calibration.movement).
 
 Every chunk of frames the measuring job takes is first shown to the movement test, in frame-time order, with the
 camera's current calibration as the reference. Without an alarm the frames are measured and the test's state is
-kept for the next chunk (`movement_monitors`, one row per camera, valid for one epoch and calibration version: a
-new current version starts the test again, on its own reference). With an alarm the frames from the change point
+kept for the next chunk (`movement_monitors`, one row per camera, valid for one epoch: a newer current version
+moves it onto its own reference). With an alarm the frames from the change point
 on are left unmeasured, the camera's next epoch opens (service.calibration.repository.open_epoch_after_move), and
 the frames already measured since the change point wait to be measured again with the new epoch's calibration.
 """
@@ -66,12 +66,17 @@ def watch(
     frames: Sequence[Frame],
     people: dict[Any, list[Any]],
 ) -> Watched:
-    """Show the chunk's frames to the movement test, oldest frame time first, stopping at an alarm."""
+    """Show the chunk's frames to the movement test, oldest frame time first, stopping at an alarm.
+
+    The test's state lives as long as the epoch: a newer calibration version moves it onto its own reference
+    (MovementMonitor.rebased) rather than starting again, so a move never hides behind a fresh solve."""
     camera = reference_for(calibration)
-    current = (
-        stored is not None and stored.epoch == calibration.epoch and stored.calibration_version == calibration.version
-    )
-    monitor = MovementMonitor.from_bytes(camera, stored.state) if current else MovementMonitor.start(camera)  # type: ignore[union-attr]
+    if stored is None or stored.epoch != calibration.epoch:
+        monitor = MovementMonitor.start(camera)
+    else:
+        monitor = MovementMonitor.from_bytes(stored.state)
+        if stored.calibration_version != calibration.version:
+            monitor = monitor.rebased(camera)
     ordered = sorted(frames, key=lambda frame: (frame.timestamp, frame.id))
     tops, bottoms, index = [], [], []
     for k, frame in enumerate(ordered):

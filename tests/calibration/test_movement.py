@@ -90,9 +90,34 @@ def test_a_move_is_found_within_seconds_and_dated_to_its_first_frame(name: str, 
         assert len(outcome.alarms) >= 1
         alarm_frame, change_point = outcome.alarms[0]
         assert move_frame <= alarm_frame <= move_frame + 40  # 20 s at 2 fps
-        assert move_frame - 2 <= change_point <= alarm_frame
+        # Dated at or a little before the move: no frame of the new view is left measured with the old calibration.
+        assert move_frame - 12 <= change_point <= move_frame
 
 
 def test_a_pure_pan_is_invisible_to_people() -> None:
     outcome = run(Scenario("pan", move=lambda c: c.panned(10.0), duration_s=480.0), 0)
     assert outcome.alarms == []
+
+
+def test_the_state_survives_bytes_and_a_newer_calibration_keeps_a_move_in_sight() -> None:
+    """A measuring job keeps the test as bytes; a newer version of the epoch rebases it instead of starting again,
+    so a move made just before the new version became current is still found."""
+    pose = CameraPose()
+    moved = pose.panned(10.0).tilted(7.0)
+    crowd = Crowd(CrowdConfig(people=36, region_m=(-20.0, 20.0, 2.0, 36.0)), np.random.default_rng(5))
+    rough = reference(pose.zoomed(1.04).tilted(0.5))  # the epoch's first, rougher calibration
+    monitor = MovementMonitor.start(rough)
+    alarms = []
+    for k in range(400):
+        if k == 300:
+            restored = MovementMonitor.from_bytes(monitor.to_bytes())
+            assert restored.camera == monitor.camera and restored.statistic() == monitor.statistic()
+            monitor = restored.rebased(reference(pose))  # a better solve of the same epoch arrives with the move
+        tops, bottoms, _ = crowd.seen_by(pose if k < 300 else moved)
+        evidence = frames_evidence(monitor.camera, tops, bottoms, np.zeros(len(tops), int), 1)
+        alarm = monitor.observe(evidence, [k.to_bytes(8, "big")], [k / 2.0])
+        if alarm is not None:
+            alarms.append((k, int.from_bytes(alarm.frame_id, "big")))
+            break
+        crowd.step(0.5)
+    assert len(alarms) == 1 and 300 <= alarms[0][0] <= 340 and 288 <= alarms[0][1] <= 300
