@@ -49,10 +49,17 @@ def _not_a_boolean(value: object) -> object:
 # integers would also refuse 640.0, which JSON Schema calls an integer, so integers only refuse booleans.
 Number = Annotated[float, Field(strict=True)]
 Integer = Annotated[int, BeforeValidator(_not_a_boolean)]
-FiniteFloat = Annotated[float, Field(allow_inf_nan=False, strict=True)]
+# Every pixel coordinate, whatever its score: finite and within ten times the largest image side of the origin. The
+# routers then hold it to the camera's image (service.routers.common); this bound alone keeps every number storable
+# (keypoints are packed as float32, whose range ends at 3.4e38: 1e39 with a score of 0 once failed a whole write
+# batch) and is in the published schema, so a client learns it from the contract.
+COORDINATE_LIMIT_PX = 10 * MAX_IMAGE_SIDE_PX
+CoordinatePx = Annotated[
+    float, Field(ge=-COORDINATE_LIMIT_PX, le=COORDINATE_LIMIT_PX, allow_inf_nan=False, strict=True)
+]
 Score = Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False, strict=True)]
-PointPx = tuple[FiniteFloat, FiniteFloat]
-Keypoint = tuple[FiniteFloat, FiniteFloat, Score]
+PointPx = tuple[CoordinatePx, CoordinatePx]
+Keypoint = tuple[CoordinatePx, CoordinatePx, Score]
 CameraId = Annotated[str, Field(pattern=CAMERA_ID_PATTERN, examples=["lobby-1"])]
 # Timestamps are RFC 3339 with a zone, or Unix seconds: a JSON number (pydantic reads magnitudes above 2e10 as
 # milliseconds, as JavaScript clients send them) or, in a query string or form, its digits. The JSON schema says

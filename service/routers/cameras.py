@@ -59,9 +59,10 @@ def put_camera(
 ) -> CameraOut:
     """Create or update a camera (idempotent): 201 when created, 200 when it existed.
 
-    A changed image size makes stored evidence meaningless (other pixels), so the calibration is reset and the
-    evidence dropped. A changed height prior, focal assumption or known focal length keeps the evidence and
-    asks for a forced re-solve; the current calibration stays in use until it is replaced.
+    A changed image size makes stored evidence meaningless (other pixels), so the calibration is reset, the
+    evidence dropped, and frames still waiting for pose or measuring fail with the reason. A changed height prior,
+    focal assumption or known focal length keeps the evidence and asks for a forced re-solve; the current
+    calibration stays in use until it is replaced.
     """
     before = repository.get_camera(session, camera_id)
     old = None
@@ -93,6 +94,12 @@ def put_camera(
         if old[:2] != (body.image_width_px, body.image_height_px):
             was_calibrated = repository.current_calibration(session, camera_id) is not None
             repository.reset_calibration(session, camera_id, drop_evidence=True)
+            repository.fail_unfinished_frames(
+                session,
+                camera_id,
+                f"camera {camera_id!r} was resized to {body.image_width_px}x{body.image_height_px} px before this "
+                "frame was measured",
+            )
             if was_calibrated:
                 deliveries = status_changed_deliveries(session, camera_id, None, "calibrated", "image size changed")
         elif old[2:] != (body.person_height_m, body.equal_focal, body.known_focal_px):

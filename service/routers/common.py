@@ -95,8 +95,9 @@ def people_for_camera(people: Sequence[PersonObservation], camera: Camera, setti
     """Posted people as store rows, after the checks that need the camera and the settings.
 
     Too many people is 413 (settings.max_people_per_frame). Coordinates more than half an image beyond an edge
-    are 422 with each bad field's location; keypoints with score 0 are exempt, since pose models put
-    placeholder coordinates on joints they did not find.
+    are 422 with each bad field's location, whatever their score: pose models put the joints they did not find
+    at placeholders inside or next to the image (0, 0 or -1, -1), never half an image away, and a number that
+    passes here must be one the store can keep (a score-0 keypoint at 1e39 once failed a whole write batch).
     """
     if len(people) > settings.max_people_per_frame:
         raise ProblemError(
@@ -124,8 +125,8 @@ def people_for_camera(people: Sequence[PersonObservation], camera: Camera, setti
     rows = []
     for index, person in enumerate(people):
         if person.keypoints is not None:
-            for k, (x, y, score) in enumerate(person.keypoints):
-                if score > 0 and not (low_x <= x <= high_x and low_y <= y <= high_y):
+            for k, (x, y, _score) in enumerate(person.keypoints):
+                if not (low_x <= x <= high_x and low_y <= y <= high_y):
                     far_outside([index, "keypoints", k], x, y)
             rows.append(person_from_keypoints(person.keypoints, size))
         else:

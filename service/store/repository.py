@@ -8,13 +8,16 @@ unique-constraint collision by reading the winner's row, so a retry never fails 
 
 from __future__ import annotations
 
+import hashlib
 import math
 import random
+import struct
 import uuid
 from collections.abc import Collection, Sequence
 from contextlib import nullcontext
 from dataclasses import dataclass, field
-from datetime import UTC, datetime
+from datetime import UTC, datetime, timedelta
+from functools import cached_property
 from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
@@ -80,6 +83,7 @@ _FRAME_COLUMNS = (
     "people",
     "pose_model",
     "request_id",
+    "content_sha256",
 )
 _VIOLATION_EVENTS = cast(Table, ViolationEvent.__table__)
 
@@ -95,6 +99,27 @@ class CameraNotFoundError(LookupError):
 
 class FrameNotFoundError(LookupError):
     """No frame with that id (for that camera)."""
+
+
+class CameraResizedError(Exception):
+    """The camera's image size is no longer the one its frame was checked against (a PUT changed it since): the
+    frame is not stored, so no person checked against the old size joins the new size's evidence."""
+
+    def __init__(self, camera_id: str, size_px: tuple[int, int]) -> None:
+        super().__init__(f"camera {camera_id!r} is now {size_px[0]}x{size_px[1]} px")
+        self.camera_id = camera_id
+        self.size_px = size_px
+
+
+class FramesRefusedError(Exception):
+    """Some frames of a batch cannot be stored (their camera was deleted or resized); nothing was written.
+
+    `errors` maps positions in the batch to each refused frame's own error, so the caller stores the others.
+    """
+
+    def __init__(self, errors: dict[int, Exception]) -> None:
+        super().__init__(f"{len(errors)} frames of the batch refused")
+        self.errors = errors
 
 
 # --------------------------------------------------------------------------------------------------- inputs
@@ -128,6 +153,12 @@ class NewKeypointFrame:
     client_frame_id: str | None = None
     request_id: str | None = None
     """The posting request's id, kept so the jobs that handle the frame log under it."""
+
+    @cached_property
+    def content_sha256(self) -> str:
+        """The digest stored with the frame (keypoint_frame_digest), computed on first use: a stored frame's retry
+        is compared with it; a new frame's digest comes from its packed rows instead."""
+        return keypoint_frame_digest(self.timestamp, self.people)
 
 
 @dataclass(frozen=True)
@@ -274,6 +305,48 @@ def _finite_or_none(value: float | None) -> float | None:
 def _check_point(name: str, point: Point | None) -> None:
     if point is not None and not (len(point) == 2 and all(math.isfinite(float(v)) for v in point)):
         raise ValueError(f"{name} must be two finite pixel coordinates, got {point!r}")
+
+
+# What "the same content" means for a client frame id (README, Idempotency): the same instant to the microsecond and
+# the same people in the same order, each as stored: keypoints at the float32 precision they are packed with,
+# centres as float64. How the JSON spelled the numbers (1 or 1.0, 1e2 or 100) and the key order do not matter.
+_EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
+_CENTRES = struct.Struct("<?dd?dd")
+
+
+def _instant_bytes(timestamp: datetime) -> bytes:
+    return ((timestamp - _EPOCH) // timedelta(microseconds=1)).to_bytes(8, "little", signed=True)
+
+
+def keypoint_frame_digest(
+    timestamp: datetime, people: Sequence[PersonIn], packed: Sequence[bytes | None] | None = None
+) -> str:
+    """SHA-256 (hex) of a keypoint frame's content; `packed` is each person's packed keypoints if already made."""
+    digest = hashlib.sha256(b"posemetry keypoint frame v1\0")
+    digest.update(_instant_bytes(timestamp))
+    digest.update(len(people).to_bytes(4, "little"))
+    for index, person in enumerate(people):
+        if person.keypoints is not None:
+            digest.update(b"k")
+            digest.update(packed[index] if packed is not None else pack_keypoints(person.keypoints))  # type: ignore[arg-type]
+        else:
+            shoulder, ankle = person.shoulder_px, person.ankle_px
+            digest.update(b"c")
+            digest.update(
+                _CENTRES.pack(
+                    shoulder is not None,
+                    *(shoulder or (0.0, 0.0)),
+                    ankle is not None,
+                    *(ankle or (0.0, 0.0)),
+                )
+            )
+    return digest.hexdigest()
+
+
+def image_frame_digest(data: bytes) -> str:
+    """SHA-256 (hex) of an image frame's bytes. Its timestamp is compared apart, and only when a retry gives one:
+    a frame posted without one is stamped with its time of receipt, which no retry can repeat."""
+    return hashlib.sha256(b"posemetry image frame v1\0" + data).hexdigest()
 
 
 def grid_cell(x_px: float, y_px: float, width_px: int, height_px: int) -> int:
@@ -460,6 +533,36 @@ def _count_evidence(session: Session, usable: dict[str, int]) -> None:
         session.execute(_COUNT_EVIDENCE, rows)
 
 
+def _current_sizes(session: Session, camera_ids: Collection[str]) -> dict[str, tuple[int, int]]:
+    """The cameras' image sizes as this transaction will commit against them, by id (deleted cameras absent).
+
+    Frames are checked against a camera read earlier (each API process keeps cameras in memory), so the store checks
+    that size again here, and refuses a frame whose camera has been resized since: its people were checked against
+    the old image and must not join the new one's evidence. On PostgreSQL the rows are locked (FOR NO KEY UPDATE)
+    until commit, so a PUT resizing one of these cameras either committed before this read (and is seen) or waits
+    for this commit (and then drops what it stored); on SQLite the writer already holds the one write lock.
+    """
+    if not camera_ids:
+        return {}
+    columns = _CAMERAS.c
+    stmt = (
+        select(columns.id, columns.image_width_px, columns.image_height_px)
+        .where(columns.id.in_(sorted(camera_ids)))
+        .with_for_update(key_share=True)
+    )
+    return {row.id: (row.image_width_px, row.image_height_px) for row in session.execute(stmt)}
+
+
+def _size_error(camera: Camera, sizes: dict[str, tuple[int, int]]) -> Exception | None:
+    """Why a frame checked against `camera` cannot be stored now (see _current_sizes), or None."""
+    size = sizes.get(camera.id)
+    if size is None:
+        return CameraNotFoundError(camera.id)
+    if size != (camera.image_width_px, camera.image_height_px):
+        return CameraResizedError(camera.id, size)
+    return None
+
+
 def _frame_by_client_id(session: Session, camera_id: str, client_frame_id: str) -> Frame | None:
     stmt = select(Frame).where(Frame.camera_id == camera_id, Frame.client_frame_id == client_frame_id)
     return session.execute(stmt).scalar_one_or_none()
@@ -479,10 +582,11 @@ def add_keypoint_frame(
     """Store a frame and its people atomically; returns (frame, created).
 
     A frame posted again with the same client frame id (a client retry, possibly racing the original) returns
-    the stored frame with created=False and stores nothing, so evidence is never counted twice. `camera`, when
-    the caller has already read it (the API, in a read-only session), saves reading it again inside the write
-    transaction; only its image size is used, and a camera deleted meanwhile is still refused (foreign key).
-    `request_id` is the posting request's id, kept so the jobs that handle the frame log under it.
+    the stored frame with created=False and stores nothing, so evidence is never counted twice (whether the
+    content is the same is the caller's question: compare `content_sha256`). `camera`, when the caller has already
+    read it (the API, from memory), is the camera the people were checked against: a camera deleted or resized
+    since raises CameraNotFoundError or CameraResizedError. `request_id` is the posting request's id, kept so the
+    jobs that handle the frame log under it.
     """
     _check_timestamp(timestamp)
     if camera is None:
@@ -491,11 +595,15 @@ def add_keypoint_frame(
         existing = _frame_by_client_id(session, camera_id, client_frame_id)
         if existing is not None:
             return existing, False
+    refused = _size_error(camera, _current_sizes(session, [camera_id]))
+    if refused is not None:
+        raise refused
     # The rows go in as Core inserts, which cost a fraction of an ORM flush.
     frame = _new_frame(
         camera_id, timestamp, client_frame_id, received_at or utc_now(), people=len(people), request_id=request_id
     )
     rows = _observation_rows(camera, frame.id, people)
+    frame.content_sha256 = keypoint_frame_digest(timestamp, people, [row["keypoints_f32"] for row in rows])
     try:
         # A savepoint only where a unique-id race is possible: it costs two statements on the hot path.
         with session.begin_nested() if client_frame_id is not None else nullcontext():
@@ -524,14 +632,20 @@ def add_keypoint_frames(
     The API's group commit (service.store.frame_writer) writes the frames that arrive while the previous batch
     is being written in one transaction, which costs a fraction of one transaction per frame. Retries are
     answered as in add_keypoint_frame: a client frame id already stored, or repeated within the batch, returns
-    the first frame with created=False. Unlike add_keypoint_frame there is no SAVEPOINT per frame: a frame whose
-    camera was deleted meanwhile, or whose client id another process stored since the check, makes the whole
-    batch raise IntegrityError, and the caller stores those frames one at a time instead.
+    the first frame with created=False. New frames whose camera was deleted or resized since it was read raise
+    FramesRefusedError naming them, before anything is written, so the caller stores the others. There is no
+    SAVEPOINT per frame: a frame whose client id another process stored since the check makes the whole batch
+    raise IntegrityError, and the caller stores those frames one at a time instead.
     """
     received_at = received_at or utc_now()
     for item in frames:
         _check_timestamp(item.timestamp)
     known = _frames_by_client_ids(session, frames)
+    new = [i for i, item in enumerate(frames) if (item.camera.id, item.client_frame_id) not in known]
+    sizes = _current_sizes(session, {frames[i].camera.id for i in new})
+    refused = {i: error for i in new if (error := _size_error(frames[i].camera, sizes)) is not None}
+    if refused:
+        raise FramesRefusedError(refused)
     results: list[tuple[Frame, bool]] = []
     frame_rows: list[dict[str, Any]] = []
     observation_rows: list[dict[str, Any]] = []
@@ -553,6 +667,7 @@ def add_keypoint_frames(
         if item.client_frame_id is not None:
             known[key] = frame
         rows = _observation_rows(item.camera, frame.id, item.people)
+        frame.content_sha256 = keypoint_frame_digest(item.timestamp, item.people, [r["keypoints_f32"] for r in rows])
         frame_rows.append(_frame_row(frame))
         observation_rows += rows
         usable[camera_id] = usable.get(camera_id, 0) + sum(1 for row in rows if row["usable"])
@@ -640,20 +755,27 @@ def add_image_frame(
     client_frame_id: str | None = None,
     received_at: datetime | None = None,
     request_id: str | None = None,
+    content_sha256: str | None = None,
 ) -> tuple[Frame, bool]:
     """Store an image frame, `detecting` until its pose job has run; returns (frame, created) like keypoint frames.
 
     The picture goes to `frame_images`, the pose job's input; `record_detections` deletes it afterwards unless
-    the camera keeps images. A retry with the same client frame id stores nothing.
+    the camera keeps images. A retry with the same client frame id stores nothing. `camera` is the camera the
+    image was checked against: CameraResizedError if its size has changed since (see _current_sizes).
+    `content_sha256` is image_frame_digest of what was posted.
     """
     _check_timestamp(timestamp)
     if client_frame_id is not None:
         existing = _frame_by_client_id(session, camera.id, client_frame_id)
         if existing is not None:
             return existing, False
+    refused = _size_error(camera, _current_sizes(session, [camera.id]))
+    if refused is not None:
+        raise refused
     frame = _new_frame(
         camera.id, timestamp, client_frame_id, received_at or utc_now(), source="image", request_id=request_id
     )
+    frame.content_sha256 = content_sha256
     image = {
         "frame_id": frame.id,
         "content_type": content_type,
@@ -675,6 +797,26 @@ def add_image_frame(
         raise
     _attach_inserted(session, frame)
     return frame, True
+
+
+def fail_unfinished_frames(session: Session, camera_id: str, reason: str) -> int:
+    """Fail the camera's frames still waiting for pose or measuring, with `reason`; returns how many.
+
+    For a resize: such frames were checked against the old image size, so an image's people must not join the new
+    size's evidence and a frame's people (dropped with the evidence) must not be measured with its calibration.
+    Their images go too, unless the camera keeps images.
+    """
+    waiting = (_FRAMES.c.camera_id == camera_id) & _FRAMES.c.status.in_(("detecting", "pending"))
+    keeps_images = session.scalar(select(Camera.keep_images).where(Camera.id == camera_id))
+    if not keeps_images:
+        session.execute(delete(FrameImage).where(FrameImage.frame_id.in_(select(_FRAMES.c.id).where(waiting))))
+    failed = session.execute(
+        update(_FRAMES)
+        .where(waiting)
+        .values(status="failed", error=clip_reason(reason, FRAME_ERROR_MAX_LENGTH), processed_at=utc_now())
+        .execution_options(synchronize_session=False)
+    )
+    return int(failed.rowcount)  # type: ignore[attr-defined]
 
 
 def frame_image(session: Session, frame_id: uuid.UUID) -> FrameImage | None:
