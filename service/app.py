@@ -24,7 +24,7 @@ from service.json_body import register_body_schemas
 from service.observability.collectors import SharedStateCollector
 from service.observability.http import RequestTelemetry
 from service.observability.metrics import exposition_registry
-from service.problems import PROBLEM_MEDIA_TYPE, BodyGuard, HeaderGuard, install_handlers
+from service.problems import PROBLEM_MEDIA_TYPE, PROBLEM_SCHEMA, BodyGuard, HeaderGuard, install_handlers
 from service.query_params import known_query_only
 from service.routers import (
     calibration,
@@ -59,19 +59,6 @@ Admin keys create keys with `POST /v1/keys`; a key may be limited to some camera
 documentation (`/docs`, `/redoc`, `/openapi.json`) is public: it describes the API and holds no data.
 """
 
-PROBLEM_SCHEMA = {
-    "type": "object",
-    "properties": {
-        "type": {"type": "string", "format": "uri"},
-        "title": {"type": "string"},
-        "status": {"type": "integer"},
-        "detail": {"type": "string"},
-        "instance": {"type": "string"},
-        "request_id": {"type": "string", "description": "The request's id, as in the X-Request-ID header."},
-        "errors": {"type": "array", "items": {"type": "object"}},
-    },
-    "required": ["type", "title", "status", "detail"],
-}
 PROBLEM_RESPONSES: dict[int | str, dict[str, object]] = {
     "4XX": {"description": "Problem details (RFC 9457)", "content": {PROBLEM_MEDIA_TYPE: {"schema": PROBLEM_SCHEMA}}},
     "5XX": {"description": "Problem details (RFC 9457)", "content": {PROBLEM_MEDIA_TYPE: {"schema": PROBLEM_SCHEMA}}},

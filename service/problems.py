@@ -37,6 +37,26 @@ UNAVAILABLE_HEADERS = {"Retry-After": str(RETRY_AFTER_S)}
 log = logging.getLogger(__name__)
 
 
+PROBLEM_SCHEMA = {
+    "type": "object",
+    "properties": {
+        "type": {"type": "string", "format": "uri"},
+        "title": {"type": "string"},
+        "status": {"type": "integer"},
+        "detail": {"type": "string"},
+        "instance": {"type": "string"},
+        "request_id": {"type": "string", "description": "The request's id, as in the X-Request-ID header."},
+        "errors": {"type": "array", "items": {"type": "object"}},
+    },
+    "required": ["type", "title", "status", "detail"],
+}
+
+
+def problem_response_doc(description: str) -> dict[str, Any]:
+    """An OpenAPI response entry for one status answered with a problem document."""
+    return {"description": description, "content": {PROBLEM_MEDIA_TYPE: {"schema": PROBLEM_SCHEMA}}}
+
+
 class ProblemError(Exception):
     """Raise from a handler to answer with a problem document (`kind` becomes the `type` URI's last segment).
 

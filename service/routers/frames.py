@@ -17,7 +17,7 @@ from service.images import ImageError, ImageTooLargeError, decode
 from service.json_body import json_body, openapi_body
 from service.observability.metrics import FRAMES_INGESTED
 from service.observability.request_id import current_request_id
-from service.problems import ProblemError, UploadRoute
+from service.problems import ProblemError, UploadRoute, problem_response_doc
 from service.schemas import (
     CLIENT_FRAME_ID_PATTERN,
     DetectedPersonOut,
@@ -51,7 +51,7 @@ JSON_BODIES = (KeypointFrame,)
 
 # How often a keypoint frame is checked again when its camera is resized while it is being stored.
 RESIZE_RECHECKS = 2
-CONFLICT_RESPONSE = {409: {"description": "The frame_id is stored with other content (the body names that frame)"}}
+CONFLICT_RESPONSE = {409: problem_response_doc("The frame_id is stored with other content (the body names that frame)")}
 
 
 def frame_url(camera_id: str, frame_id: uuid.UUID) -> str:

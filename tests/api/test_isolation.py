@@ -139,3 +139,29 @@ def test_a_burst_of_good_and_poisoned_frames_from_several_keys_loses_no_good_fra
     wanted = {body["frame_id"] for _, _, body, good in posts if good}
     assert set(stored) == wanted and set(stored.values()) == {1}
     assert people == sum(len(body["people"]) for _, _, body, good in posts if good)
+
+
+# --------------------------------------------------------------------------------------------------- other numbers
+
+
+def _integer_query_parameters(schema: dict[str, Any]) -> list[tuple[str, str, str]]:
+    """(method, path, parameter) of every integer query parameter of the contract."""
+    found = []
+    for path, operations in schema["paths"].items():
+        for method, operation in operations.items():
+            for parameter in operation.get("parameters", []):
+                types = [parameter["schema"], *parameter["schema"].get("anyOf", [])]
+                if parameter["in"] == "query" and any(t.get("type") == "integer" for t in types):
+                    found.append((method.upper(), path, parameter["name"]))
+    return found
+
+
+def test_every_integer_query_parameter_refuses_what_the_database_cannot_hold(client: TestClient, camera: str) -> None:
+    """`before=10**23` on the calibration history overflowed SQLite's INTEGER: a 500, found while auditing this."""
+    found = _integer_query_parameters(client.get("/openapi.json").json())
+    assert ("GET", "/v1/cameras/{camera_id}/calibration/history", "before") in found
+    for method, path, name in found:
+        url = path.replace("{camera_id}", camera).replace("{frame_id}", "0" * 8 + "-0000-0000-0000-" + "0" * 12)
+        for value in (10**23, -(10**23), 2**63):
+            response = client.request(method, f"{url}?{name}={value}")
+            assert 400 <= response.status_code < 500, (method, url, name, value, response.text)
