@@ -21,6 +21,7 @@ from service.auth.dependencies import AUTH_RESPONSE_DESCRIPTIONS, require_key
 from service.auth.middleware import AuthenticateBeforeBody
 from service.dispatch import Dispatcher, NullDispatcher
 from service.json_body import register_body_schemas
+from service.observability import redact
 from service.observability.collectors import SharedStateCollector
 from service.observability.http import RequestTelemetry
 from service.observability.metrics import exposition_registry
@@ -127,6 +128,7 @@ def create_app(
     shared_state = SharedStateCollector(app.state.read_session_factory, queue_depths)
     app.state.metrics_registry = exposition_registry([shared_state])
     install_handlers(app)
+    redact.APP_SECRETS.add(settings.logged_secrets())
     app.add_middleware(
         BodyGuard,
         max_body_bytes=settings.max_body_bytes,

@@ -25,6 +25,7 @@ from starlette.responses import JSONResponse
 from starlette.routing import BaseRoute, Match
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from service.observability.redact import APP_SECRETS
 from service.observability.request_id import HEADER, current_request_id
 from service.store.db import is_database_unavailable
 
@@ -81,10 +82,10 @@ def problem_body(status: int, kind: str, detail: str, instance: str | None = Non
         "type": TYPE_BASE + kind,
         "title": HTTPStatus(status).phrase,
         "status": status,
-        "detail": detail,
+        "detail": APP_SECRETS(detail),  # a detail may repeat the path, where a careless client may have put a key
     }
     if instance is not None:
-        body["instance"] = instance
+        body["instance"] = APP_SECRETS(instance)
     request_id = current_request_id()
     if request_id is not None:
         body["request_id"] = request_id

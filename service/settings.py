@@ -11,6 +11,7 @@ from functools import lru_cache
 from ipaddress import IPv4Network, IPv6Network
 from pathlib import Path
 from typing import Annotated, Literal
+from urllib.parse import quote, urlsplit
 
 from pydantic import Field, SecretStr, field_validator, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
@@ -260,6 +261,16 @@ class Settings(BaseSettings):
     def _absolute_data_dir(cls, value: Path) -> Path:
         """Pin a relative directory to the start-up working directory so later chdirs cannot move the data."""
         return value.expanduser().resolve()
+
+    def logged_secrets(self) -> list[str]:
+        """What no log line may show (service.observability.logs masks it): the admin key, and the passwords of the
+        database and Redis URLs."""
+        secrets = [] if self.admin_key is None else [self.admin_key.get_secret_value()]
+        for url in (self.database_url, self.redis_url):
+            password = urlsplit(url).password if url else None
+            if password:
+                secrets += [password, quote(password, safe="")]
+        return secrets
 
     @field_validator("admin_key")
     @classmethod
