@@ -22,6 +22,7 @@ import time
 import uuid
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from dataclasses import replace
 from typing import ParamSpec, TypeVar
 
 from rq import get_current_job
@@ -308,10 +309,8 @@ def _measure_pending(settings: Settings, dispatcher: RedisDispatcher, camera_id:
             people = frames_points(session, [frame.id for frame in frames])
         outcomes = [frame_outcome(frame, people.get(frame.id, []), camera, calibration) for frame in frames]
         if outcomes:
-            with _transaction(settings) as session:
-                record_frame_outcomes(session, outcomes)
-                client_ids = {frame.id: frame.client_frame_id for frame in frames}
-                deliveries = violation_deliveries(session, camera, outcomes, settings, client_frame_ids=client_ids)
+            client_ids = {frame.id: frame.client_frame_id for frame in frames}
+            outcomes, deliveries = store_outcomes(settings, camera, outcomes, client_ids)
             _announce(dispatcher, deliveries)
         for frame, measured in zip(frames, outcomes, strict=True):
             _log_measured(frame, measured)
@@ -325,6 +324,42 @@ def _measure_pending(settings: Settings, dispatcher: RedisDispatcher, camera_id:
     ):
         dispatcher.calibration_requested(camera_id, False)
     return outcome
+
+
+def store_outcomes(
+    settings: Settings, camera: Camera, outcomes: list[FrameOutcome], client_ids: dict[uuid.UUID, str | None]
+) -> tuple[list[FrameOutcome], list[uuid.UUID]]:
+    """Store a chunk's results with their violation events and webhook deliveries; (outcomes as stored, deliveries).
+
+    One transaction for the chunk. If it fails for any reason but an unavailable database, each frame is stored in
+    a transaction of its own, and a frame that fails alone is stored `failed` with the reason: one frame the store
+    cannot take must not hold back its neighbours (a chunk that always failed would fail every retry of the job,
+    and the camera's frames behind it would wait for ever).
+    """
+    try:
+        with _transaction(settings) as session:
+            record_frame_outcomes(session, outcomes)
+            return outcomes, violation_deliveries(session, camera, outcomes, settings, client_frame_ids=client_ids)
+    except Exception as exc:
+        if isinstance(exc, SQLAlchemyError) and is_database_unavailable(exc):
+            raise
+        log.warning("a chunk of %d results failed (%r); storing them one at a time", len(outcomes), exc)
+    stored, deliveries = [], []
+    for outcome in outcomes:
+        try:
+            with _transaction(settings) as session:
+                record_frame_outcomes(session, [outcome])
+                deliveries += violation_deliveries(session, camera, [outcome], settings, client_frame_ids=client_ids)
+        except Exception as exc:
+            if isinstance(exc, SQLAlchemyError) and is_database_unavailable(exc):
+                raise
+            log.error("the result of frame %s could not be stored: %r", outcome.frame_id, exc, exc_info=exc)
+            reason = clip_reason(f"its result could not be stored ({type(exc).__name__}: {exc})")
+            outcome = replace(outcome, status=FAILED, result=None, violations=(), error=reason)
+            with _transaction(settings) as session:
+                record_frame_outcomes(session, [outcome])
+        stored.append(outcome)
+    return stored, deliveries
 
 
 def _log_measured(frame: Frame, outcome: FrameOutcome) -> None:
