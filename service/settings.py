@@ -188,6 +188,15 @@ class Settings(BaseSettings):
         description="Time a webhook receiver has to connect, read the request and answer, in seconds; a slower "
         "answer counts as a failed attempt and is retried.",
     )
+    webhook_lease_margin_s: float = Field(
+        default=60.0,
+        ge=1,
+        le=3600,
+        description="How long past `webhook_timeout_s` (x 3: connect, send, answer) a webhook attempt keeps its "
+        "delivery to itself. A worker killed in the middle of an attempt frees the delivery for the next attempt "
+        "that long after the attempt would have timed out; the attempt may have reached the receiver, which then "
+        "gets the event twice, with the same `webhook-id`.",
+    )
     webhook_allowed_networks: Annotated[tuple[IPv4Network | IPv6Network, ...], NoDecode] = Field(
         default=(),
         description="Address ranges webhooks may be sent to although the SSRF policy refuses them (loopback, "

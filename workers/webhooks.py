@@ -24,16 +24,19 @@ from service.observability.metrics import WebhookOutcome, record_webhook_deliver
 from service.queue import RedisDispatcher
 from service.settings import Settings, get_settings
 from service.store.models import utc_now
+from service.store.webhook_models import WebhookDelivery
 from service.store.webhooks import AttemptRecord, Claim, claim_attempt, prune_webhook_log, record_attempt
 from service.webhooks.delivery import decide_attempt, send, utc_timestamp_s
 from service.webhooks.signing import signed_headers
-from workers.jobs import session_factory
+from workers.jobs import read_session_factory, session_factory
 
 log = logging.getLogger(__name__)
 
-# How long past the request timeout an attempt's lease lasts: a worker that died mid-request frees its
-# delivery for the next attempt this long after the request would have timed out.
-LEASE_MARGIN_S = 60.0
+# RQ schedules jobs to the whole second, so an attempt queued for the moment its predecessor's lease runs out (a
+# worker killed in the middle of an attempt; the start-up pass queues the next one then) may start up to a second
+# early. It waits that lease out instead of finding the delivery taken and leaving it to the periodic sweep, which
+# comes a minute and more later.
+SCHEDULE_SLACK_S = 2.0
 # Each worker process prunes the delivery log at most this often (one DELETE, after a delivery).
 PRUNE_INTERVAL_S = 3600.0
 # The delivery-metric label of each decision; an attempt the SSRF policy refused counts as `blocked`.
@@ -57,8 +60,12 @@ def deliver_webhook(delivery_id: str, attempt: int) -> str:
     (gone, skipped, paused)."""
     settings = get_settings()
     delivery_uuid = uuid.UUID(delivery_id)
-    with _transaction(settings) as session:
-        claim = claim_attempt(session, delivery_uuid, attempt, lease_s=3 * settings.webhook_timeout_s + LEASE_MARGIN_S)
+    claim = _claim(settings, delivery_uuid, attempt)
+    if claim == "skipped":
+        left_s = _lease_left_s(settings, delivery_uuid, attempt)
+        if left_s is not None and 0 < left_s <= SCHEDULE_SLACK_S:
+            time.sleep(left_s + 0.05)
+            claim = _claim(settings, delivery_uuid, attempt)
     if isinstance(claim, str):
         return claim
     record = _attempt(claim, settings)
@@ -74,6 +81,22 @@ def deliver_webhook(delivery_id: str, attempt: int) -> str:
             log.warning("could not queue retry %d of delivery %s (the sweep will): %s", attempt + 1, delivery_id, exc)
     _prune_now_and_then(settings)
     return record.outcome
+
+
+def _claim(settings: Settings, delivery_id: uuid.UUID, attempt: int) -> Claim | str:
+    lease_s = 3 * settings.webhook_timeout_s + settings.webhook_lease_margin_s
+    with _transaction(settings) as session:
+        return claim_attempt(session, delivery_id, attempt, lease_s=lease_s)
+
+
+def _lease_left_s(settings: Settings, delivery_id: uuid.UUID, attempt: int) -> float | None:
+    """Seconds until the lease of the attempt before `attempt` runs out, if that lease is all that holds it back."""
+    with read_session_factory(settings)() as session:
+        delivery = session.get(WebhookDelivery, delivery_id)
+        if delivery is None or delivery.status != "pending" or delivery.attempts != attempt - 1:
+            return None
+        lease_until = delivery.lease_until
+    return None if lease_until is None else (lease_until - utc_now()).total_seconds()
 
 
 def _attempt(claim: Claim, settings: Settings) -> AttemptRecord:
