@@ -72,9 +72,9 @@ class Settings(BaseSettings):
         ge=0.0,
         le=60.0,
         description="How long each API process reuses a camera's image size, read for accepting a keypoint frame, "
-        "before reading it again in the background (a third of the API's CPU per frame otherwise). A camera changed "
-        "or deleted through another API process is seen within about this time, twice it at worst (at once by the "
-        "process that changed it); 0 reads every request.",
+        "before reading it again in the background (a third of the API's CPU per frame otherwise). No frame depends "
+        "on it: the store checks the size again when it commits a frame, and a frame checked against a size changed "
+        "meanwhile (by any API process) is checked again against the new one; 0 reads every request.",
     )
     max_people_per_frame: int = Field(
         default=200,
