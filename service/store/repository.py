@@ -629,13 +629,14 @@ def add_keypoint_frame(
     jobs that handle the frame log under it.
     """
     _check_timestamp(timestamp)
+    checked_elsewhere = camera is not None
     if camera is None:
-        camera = _require_camera(session, camera_id)
+        camera = _require_camera(session, camera_id)  # read in this transaction: current by construction
     if client_frame_id is not None:
         existing = _frame_by_client_id(session, camera_id, client_frame_id)
         if existing is not None:
             return existing, False
-    refused = _size_error(camera, _current_sizes(session, [camera_id]))
+    refused = _size_error(camera, _current_sizes(session, [camera_id])) if checked_elsewhere else None
     if refused is not None:
         raise refused
     # The rows go in as Core inserts, which cost a fraction of an ORM flush.
