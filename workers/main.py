@@ -170,7 +170,11 @@ class _Recovers:
         super().__init__(*args, **kwargs)
         self.settings = settings or get_settings()
         dispatcher = RedisDispatcher(self.connection)
-        self.recovery = RecoverySchedule(self.connection, lambda: recover(self.settings, dispatcher, periodic=True))
+        self.recovery = RecoverySchedule(
+            self.connection,
+            lambda: recover(self.settings, dispatcher, periodic=True),
+            lambda: recover(self.settings, dispatcher, periodic=False),
+        )
 
     def run_maintenance_tasks(self) -> None:
         try:

@@ -28,7 +28,7 @@ from tests.faults.fleet import Fleet, assert_nothing_lost_or_doubled, posting, s
 from tests.faults.harness import Client, SimulatedCamera, create_camera, kill_worker_running, post_frames, wait_until
 from tests.serving import Served, clean_environment, serve
 
-BUSY_TIMEOUT_S = 2
+BUSY_TIMEOUT_S = 1
 CLIENTS = 6
 RECOVERY_DEADLINE_S = 90.0
 
@@ -71,17 +71,17 @@ def test_sqlite_locked_past_the_busy_timeout_with_clients_posting(served: tuple[
     _, data_dir = served
     cameras = [calibrated(client, "dock", seed=9), calibrated(client, "quay", seed=10)]
     with posting(Fleet(client, cameras, CLIENTS)) as fleet:
-        time.sleep(1.0)
+        time.sleep(0.5)
         blocker = sqlite3.connect(data_dir / "posemetry.sqlite3", isolation_level=None, timeout=30)
         try:
             blocker.execute("BEGIN IMMEDIATE")
             locked_at = time.monotonic()
-            time.sleep(2 * BUSY_TIMEOUT_S + 1)
+            time.sleep(2.5 * BUSY_TIMEOUT_S)
         finally:
             blocker.execute("ROLLBACK")
             blocker.close()
         released_at = time.monotonic()
-        time.sleep(2.0)
+        time.sleep(1.0)
     last_post = time.monotonic()
     print(f"\nSQLite locked for {released_at - locked_at:.1f} s: {fleet.summary()}")
     statuses = fleet.statuses()
@@ -101,9 +101,9 @@ def test_worker_killed_mid_measuring_with_clients_posting(served: tuple[Served, 
     connection = redis.Redis(unix_socket_path=str(embedded_socket_path(data_dir)))
     try:
         with posting(Fleet(client, cameras, CLIENTS)) as fleet:
-            time.sleep(1.0)
+            time.sleep(0.5)
             _, pid, killed_at = kill_worker_running(connection, "frames")
-            time.sleep(2.0)
+            time.sleep(1.0)
         last_post = time.monotonic()
     finally:
         connection.close()
@@ -126,12 +126,12 @@ def test_serves_redis_killed_with_clients_posting(served: tuple[Served, Path], c
     redis_pid = int(pid_file.read_text())
     connection = redis.Redis(unix_socket_path=str(embedded_socket_path(data_dir)))
     with posting(Fleet(client, cameras, CLIENTS)) as fleet:
-        time.sleep(1.0)
+        time.sleep(0.5)
         os.kill(redis_pid, signal.SIGKILL)
         killed_at = time.monotonic()
         wait_until(lambda: _answers(connection), "serve to start its Redis again", poll_s=0.01)
         back_at = time.monotonic()
-        time.sleep(2.0)
+        time.sleep(1.0)
     last_post = time.monotonic()
     connection.close()
     print(f"\nserve's Redis killed, back {back_at - killed_at:.1f} s later: {fleet.summary()}")
