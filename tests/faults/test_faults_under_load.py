@@ -22,30 +22,22 @@ import time
 import uuid
 from collections import Counter
 from collections.abc import Iterator
-from dataclasses import dataclass
 from typing import Any
 
 import pytest
 import redis
 from sqlalchemy import create_engine, text
 
-from service.store.migrate import upgrade
 from tests.faults.fleet import Fleet, assert_nothing_lost_or_doubled, posting, sql_counts
 from tests.faults.harness import (
     Client,
-    RedisServer,
     SimulatedCamera,
-    Supervised,
-    api_process,
+    Stack,
+    compose_stack,
     kill_worker_running,
-    posemetry,
     post_frames,
-    running,
     wait_until,
 )
-from tests.postgres import PostgresCluster, cluster_or_skip
-from tests.serving import clean_environment
-from tests.shared import model_dir_path
 from tests.webhooks.receiver import Answer, Receiver
 
 CLIENTS = 6
@@ -53,54 +45,19 @@ RECOVERY_DEADLINE_S = 90.0
 ALARM = {"distance_threshold": {"value": 1000, "unit": "m"}}  # every pair a violation: every frame an event
 
 
-@dataclass
-class Stack:
-    cluster: PostgresCluster
-    database_url: str
-    redis: RedisServer
-    client: Client
-    workers: list[Supervised]
-    queue_redis: redis.Redis
-
-
 @pytest.fixture(scope="module")
 def stack() -> Iterator[Stack]:
-    cluster = cluster_or_skip()
-    cluster.start()
-    redis_server = RedisServer().start()
-    try:
-        url = cluster.create_database("posemetry")
-        upgrade(url)
-        env = clean_environment(
-            database_url=url,
-            redis_url=redis_server.url,
-            calibration_min_people=str(10**9),  # cameras calibrate when a test forces a solve
-            calibration_sample_cap="2000",
-            model_dir=str(model_dir_path()),
-            webhook_allowed_networks="127.0.0.0/8",
-            webhook_cooldown_s="0",
-            webhook_retry_base_s="0.5",
-            webhook_retry_cap_s="2",
-            webhook_max_attempts="100",
-            webhook_timeout_s="1",
-            webhook_lease_margin_s="2",
-        )
-        api, base = api_process(env)
-        workers = [Supervised(lambda: posemetry(["worker"], env)) for _ in range(2)]
-        with running(api):
-            client = Client(base, env["POSEMETRY_ADMIN_KEY"])
-            wait_until(client.ready, "the API to be ready")
-            queue_redis = redis.Redis(unix_socket_path=str(redis_server.socket))
-            try:
-                yield Stack(cluster, url, redis_server, client, workers, queue_redis)
-            finally:
-                queue_redis.close()
-                for worker in workers:
-                    worker.stop()
-            assert api.poll() is None, "the API process died"
-    finally:
-        redis_server.stop()
-        cluster.stop()
+    with compose_stack(
+        calibration_sample_cap="2000",
+        webhook_allowed_networks="127.0.0.0/8",
+        webhook_cooldown_s="0",
+        webhook_retry_base_s="0.5",
+        webhook_retry_cap_s="2",
+        webhook_max_attempts="100",
+        webhook_timeout_s="1",
+        webhook_lease_margin_s="2",
+    ) as started:
+        yield started
 
 
 def calibrated(client: Client, camera_id: str, seed: int, **settings: Any) -> SimulatedCamera:
