@@ -173,7 +173,11 @@ class _Recovers:
         super().__init__(*args, **kwargs)
         self.settings = settings or get_settings()
         dispatcher = RedisDispatcher(self.connection)
-        self.recovery = RecoverySchedule(self.connection, lambda: recover(self.settings, dispatcher, periodic=True))
+        self.recovery = RecoverySchedule(
+            self.connection,
+            lambda: recover(self.settings, dispatcher, periodic=True),
+            lambda: recover(self.settings, dispatcher, periodic=False),
+        )
 
     def run_maintenance_tasks(self) -> None:
         try:
@@ -263,7 +267,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     )
     args = parser.parse_args(argv)
     settings = get_settings()
-    configure_logging(args.log_format or settings.log_format, settings.log_level)
+    configure_logging(args.log_format or settings.log_format, settings.log_level, secrets=settings.logged_secrets())
     port = args.metrics_port if args.metrics_port is not None else settings.worker_metrics_port
     private_dir = None
     if port is not None and multiprocess_dir() is None:
