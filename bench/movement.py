@@ -162,3 +162,54 @@ def run(scenario: Scenario, seed: int) -> Outcome:
 
 
 __all__ = ["THRESHOLD", "Outcome", "Scenario", "run"]
+
+
+MOVES: dict[str, Callable[[CameraPose], CameraPose]] = {
+    "pan 10 + tilt 7": lambda c: c.panned(10.0).tilted(7.0),
+    "zoom x1.2": lambda c: c.zoomed(1.2),
+    "tilt 2 (nudge)": lambda c: c.tilted(2.0),
+    "tilt 1 (nudge)": lambda c: c.tilted(1.0),
+    "roll 2 (nudge)": lambda c: c.rolled(2.0),
+    "pan 10 alone": lambda c: c.panned(10.0),
+}
+
+
+def movement_lines(seeds: int, static_s: float, move_at_s: float) -> list[str]:
+    """The report of `posemetry bench movement`: every move over `seeds` streets, then static runs."""
+    lines = [
+        f"threshold {THRESHOLD:g}; {CALIBRATION_FRAMES} frames calibrate each camera; the test starts after them; "
+        f"moves at {move_at_s:g} s; 2 fps",
+        "",
+        f"{'move':<18} {'crowd':<7} {'found':>6} {'delay frames (median, max)':>27} {'delay s (max)':>14} "
+        f"{'change point - move, frames (min..max)':>40}",
+    ]
+    for name, move in MOVES.items():
+        for crowd_name, crowd in (("street", STREET), ("sparse", SPARSE)):
+            scenario = Scenario(name, crowd=crowd, move=move, move_at_s=move_at_s, duration_s=move_at_s + 60.0)
+            move_frame = round(move_at_s * scenario.fps)
+            delays, errors = [], []
+            for seed in range(seeds):
+                outcome = run(scenario, seed)
+                after = [(a, c) for a, c in outcome.alarms if a >= move_frame - 1]
+                if after:
+                    delays.append(after[0][0] - move_frame)
+                    errors.append(after[0][1] - move_frame)
+            found = f"{len(delays)}/{seeds}"
+            delay = f"{np.median(delays):.0f}, {max(delays)}" if delays else "-"
+            seconds = f"{max(delays) / scenario.fps:.1f}" if delays else "-"
+            error = f"{min(errors)}..{max(errors)}" if errors else "-"
+            lines.append(f"{name:<18} {crowd_name:<7} {found:>6} {delay:>27} {seconds:>14} {error:>40}")
+    lines += ["", f"static cameras, {static_s / 60:.0f} min of frame time each (a school class of 15 every 10 min):"]
+    for crowd_name, crowd in (("street", STREET), ("sparse", SPARSE)):
+        alarms, peak, cpu = 0, 0.0, 0.0
+        for seed in range(seeds):
+            outcome = run(Scenario("static", crowd=crowd, duration_s=static_s, group_every_s=600.0), 1000 + seed)
+            alarms += len(outcome.alarms)
+            peak = max(peak, outcome.max_statistic)
+            cpu += outcome.cpu_s
+        hours = seeds * (static_s - CALIBRATION_FRAMES / 2.0) / 3600.0
+        lines.append(
+            f"  {crowd_name:<7} {seeds} runs, {hours:.1f} h tested: {alarms} false moves, highest statistic "
+            f"{peak:.1f} (threshold {THRESHOLD:g}); detector CPU {1000 * cpu / (hours * 7200):.2f} ms per frame"
+        )
+    return lines

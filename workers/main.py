@@ -19,7 +19,9 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import shutil
+import sys
 import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -36,7 +38,8 @@ from service.cameras.repository import list_cameras
 from service.dispatch import DispatchUnavailableError
 from service.frames.repository import cameras_with_pending_frames, frames_detecting
 from service.observability.logs import LOG_FORMATS, configure_logging
-from service.observability.multiprocess import multiprocess_dir, use_directory
+from service.observability.multiprocess import ENV as METRICS_DIR_ENV
+from service.observability.multiprocess import multiprocess_dir
 from service.queue import (
     JOB_HEARTBEAT_S,
     POSE_QUEUE,
@@ -73,6 +76,8 @@ WORKER_TTL_S = 20
 # RQ's lock that keeps workers from cleaning one queue's registries at once; held for milliseconds, it expires
 # after RQ's 15 minutes if its holder is killed mid-clean, which would stall the retries of dead jobs that long.
 MAINTENANCE_LOCK_TTL_S = 60
+# Names the metrics directory this worker made for itself (and removes when it stops).
+PRIVATE_METRICS_DIR_ENV = "POSEMETRY_WORKER_PRIVATE_METRICS_DIR"
 
 
 @dataclass(frozen=True)
@@ -173,7 +178,11 @@ class _Recovers:
         super().__init__(*args, **kwargs)
         self.settings = settings or get_settings()
         dispatcher = RedisDispatcher(self.connection)
-        self.recovery = RecoverySchedule(self.connection, lambda: recover(self.settings, dispatcher, periodic=True))
+        self.recovery = RecoverySchedule(
+            self.connection,
+            lambda: recover(self.settings, dispatcher, periodic=True),
+            lambda: recover(self.settings, dispatcher, periodic=False),
+        )
 
     def run_maintenance_tasks(self) -> None:
         try:
@@ -263,12 +272,18 @@ def main(argv: Sequence[str] | None = None) -> None:
     )
     args = parser.parse_args(argv)
     settings = get_settings()
-    configure_logging(args.log_format or settings.log_format, settings.log_level)
     port = args.metrics_port if args.metrics_port is not None else settings.worker_metrics_port
-    private_dir = None
     if port is not None and multiprocess_dir() is None:
-        # A forking worker's job processes must reach the port too: they write to files in a private directory.
-        private_dir = use_directory(Path(tempfile.mkdtemp(prefix="posemetry-worker-metrics-")), clear=False)
+        # A forking worker's job processes must reach the port too, so values go to files in a private directory.
+        # prometheus_client chose in-memory values when this module's imports loaded it: start again with the
+        # directory set from the first line.
+        private = tempfile.mkdtemp(prefix="posemetry-worker-metrics-")
+        environment = {**os.environ, METRICS_DIR_ENV: private, PRIVATE_METRICS_DIR_ENV: private}
+        arguments = sys.argv[1:] if argv is None else list(argv)
+        os.execve(sys.executable, [sys.executable, "-m", "workers.main", *arguments], environment)
+    configure_logging(args.log_format or settings.log_format, settings.log_level, secrets=settings.logged_secrets())
+    private = os.environ.get(PRIVATE_METRICS_DIR_ENV)
+    private_dir = Path(private) if private and private == os.environ.get(METRICS_DIR_ENV) else None
     try:
         if port is not None:
             from service.observability.metrics import start_metrics_server

@@ -6,7 +6,7 @@ calibration versions get the epoch they belong to (1); the sampling index starts
 movement test keeps its state per camera in `movement_monitors`. No data changes on upgrade beyond the defaults.
 
 Revision ID: 0008
-Revises: 0006
+Revises: 0007
 Create Date: 2026-11-25
 """
 
@@ -18,7 +18,7 @@ import sqlalchemy as sa
 from alembic import op
 
 revision: str = "0008"
-down_revision: str | None = "0006"
+down_revision: str | None = "0007"
 branch_labels: str | Sequence[str] | None = None
 depends_on: str | Sequence[str] | None = None
 

@@ -151,3 +151,34 @@ def _eventually(scrape: Callable[[], Scrape], process: subprocess.Popen[bytes]) 
             if time.monotonic() > deadline or process.poll() is not None:
                 raise
             time.sleep(0.2)
+
+
+def test_a_worker_given_only_a_metrics_port_keeps_its_metrics_in_a_directory_of_its_own(
+    sessions: sessionmaker[Session], dispatcher: RedisDispatcher
+) -> None:
+    """As in a container of docker-compose.yml: POSEMETRY_WORKER_METRICS_PORT set and no metrics directory given."""
+    store_frames(sessions, simulated_camera(sessions), 5, dispatcher=dispatcher)
+    port = free_port()
+    env = {name: value for name, value in os.environ.items() if name != "PROMETHEUS_MULTIPROC_DIR"}
+    env["POSEMETRY_WORKER_METRICS_PORT"] = str(port)
+    queues = [arg for queue in QUEUES for arg in ("--queue", queue)]
+    command = [sys.executable, "-m", "service.cli", "worker", *queues, "--fork"]
+    worker = subprocess.Popen(command, cwd=REPO, env=env, stderr=subprocess.DEVNULL)
+
+    def all_done() -> bool:
+        with sessions() as session:
+            return session.scalar(select(func.count()).where(Frame.status != "done")) == 0
+
+    try:
+        wait_for(worker, all_done, "every frame measured")
+
+        def measuring_recorded() -> bool:
+            # A job's duration is recorded as it ends, just after its frames are committed as done.
+            scrape = _eventually(lambda: _scrape_port(port), worker)
+            count = scrape.value("posemetry_job_duration_seconds_count", queue=FRAMES_QUEUE, outcome="succeeded")
+            return count is not None and count >= 1
+
+        # Recorded in the forked job processes, and still on the worker's port.
+        wait_for(worker, measuring_recorded, "the measuring job's duration on the worker's metrics port")
+    finally:
+        assert stop(worker) == 0
