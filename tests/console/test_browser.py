@@ -9,6 +9,7 @@ cookie. Screenshots are written to $POSEMETRY_CONSOLE_SCREENSHOTS (default: the 
 
 from __future__ import annotations
 
+import json
 import os
 import socket
 from collections.abc import Iterator
@@ -24,6 +25,7 @@ from bench.simulate import SceneConfig, draw_scene
 from tests.support.app import coco_person
 from tests.support.browser import chromium, require_chromium, save_full_page
 from tests.support.serving import ADMIN_KEY, Served, clean_environment, serve
+from tests.support.shared import TOWN_CENTRE, model_dir_path
 
 FRAMES = 12
 PEOPLE_PER_FRAME = 10
@@ -44,6 +46,8 @@ class Console:
     """A key limited to the camera `lobby`."""
     frame: dict[str, Any]
     """The body of a frame `street` was sent, to send again."""
+    photo: bool
+    """Whether `street`'s latest frame is a photo it kept (where the real frames and models are at hand)."""
 
 
 @pytest.fixture(scope="module")
@@ -57,20 +61,42 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Console]:
         "webhook_allowed_networks": "127.0.0.0/8",
         "console_refresh_s": "2",
     }
+    town_frames = sorted((TOWN_CENTRE / "frames").glob("*.jpg"))
+    models = model_dir_path()
+    image = town_frames[0] if town_frames and models.is_dir() else None
+    if image is not None:
+        settings["model_dir"] = str(models)
     with serve(tmp_path_factory.mktemp("console"), clean_environment(**settings)) as app:
         assert app.http("PUT", "/v1/cameras/lobby", {"image_width_px": 1280, "image_height_px": 720})[0] == 201
         hook = {"url": f"http://127.0.0.1:{_closed_port()}/hooks", "event_types": ["violation.detected"]}
         assert app.http("POST", "/v1/webhooks", hook)[0] == 201
         frame = _stream(app, "street")
+        if image is not None:
+            _post_image(app, "street", image)
         status, scoped = app.http("POST", "/v1/keys", {"name": "lobby screen", "cameras": ["lobby"]})
         assert status == 201, scoped
-        yield Console(app, scoped["token"], frame)
+        yield Console(app, scoped["token"], frame, image is not None)
+
+
+def _post_image(app: Served, camera_id: str, image: Path) -> None:
+    """A real photo, newest of all, to a camera that keeps its images: its overlay is the latest frame's picture."""
+    now = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+    path = f"/v1/cameras/{camera_id}/frames?frame_id={camera_id}-photo&timestamp={now}"
+    status, body, _ = app.raw("POST", path, image.read_bytes(), "image/jpeg")
+    assert status == 202, body
+    url = json.loads(body)["url"]
+    app.wait_for(lambda: app.http("GET", url)[1]["status"] == "done", "the photo measured")
 
 
 def _stream(app: Served, camera_id: str) -> dict[str, Any]:
     """Frames of a simulated surveillance camera over the last minutes, until they are all measured."""
     scene = draw_scene(SceneConfig.surveillance(n_people=FRAMES * PEOPLE_PER_FRAME), np.random.default_rng(5))
-    size = {"image_width_px": scene.image_size[0], "image_height_px": scene.image_size[1], "person_height_m": 1.7}
+    size = {
+        "image_width_px": scene.image_size[0],
+        "image_height_px": scene.image_size[1],
+        "person_height_m": 1.7,
+        "keep_images": True,
+    }
     assert app.http("PUT", f"/v1/cameras/{camera_id}", size)[0] == 201
     now = datetime.now(UTC)
     urls = []
@@ -179,10 +205,12 @@ def test_an_admin_sees_cameras_history_pictures_and_failing_webhooks(served: Con
         )
         assert titles == ["focal length f", "tilt below horizon", "camera height", "evidence (people)"]
         assert driver.execute_script("return document.querySelectorAll('#history .band').length") == 3  # +-1 sigma
-        width = _wait(driver, _picture_loaded("frame-picture"), "the latest frame's top-down map")
-        assert width > 100
+        width = _wait(driver, _picture_loaded("frame-picture"), "the latest frame's picture")
         caption = driver.execute_script("return document.getElementById('frame-caption').textContent")
-        assert "10 people" in caption and "top-down map" in caption, caption
+        if served.photo:  # the photo, drawn over: as wide as the camera's frames
+            assert width == 1920 and caption.endswith("· overlay"), caption
+        else:
+            assert width > 100 and "10 people" in caption and caption.endswith("· top-down map"), caption
         assert _wait(driver, _picture_loaded("heatmap"), "the heat map") == 640
         bars = driver.execute_script("return document.querySelectorAll('#violations rect.bar').length")
         assert bars in (24, 25)
@@ -201,6 +229,9 @@ def test_an_admin_sees_cameras_history_pictures_and_failing_webhooks(served: Con
         status, accepted = app.http("POST", "/v1/cameras/street/keypoints", again)
         assert status == 202, accepted
         _wait(driver, f"document.getElementById('frame-caption').textContent !== {before!r}", "the refreshed frame")
+        caption = driver.execute_script("return document.getElementById('frame-caption').textContent")
+        assert "10 people" in caption and caption.endswith("· top-down map"), caption  # keypoints: no photo
+        _wait(driver, _picture_loaded("frame-picture"), "the new frame's top-down map")
 
 
 def test_a_key_limited_to_one_camera_sees_only_it_in_a_narrow_window(served: Console) -> None:
