@@ -81,7 +81,8 @@
     try {
       caller = await api("/v1/keys/current");
     } catch (exc) {
-      signOut(exc instanceof ApiError ? `The API refused this key: ${exc.message}` : `The API did not answer: ${exc}`);
+      if (exc instanceof ApiError && exc.status === 401) signOut(`The API refused this key: ${exc.message}`);
+      else showError(`The API could not be read (${exc.message}); try again.`);
       return;
     }
     showError("");
@@ -91,6 +92,7 @@
     const scope = caller.cameras ? `cameras ${caller.cameras.join(", ")}` : "all cameras";
     $("who").textContent = `key “${caller.name}” · ${caller.admin ? "admin" : "not admin"} · ${scope}`;
     await refresh();
+    clearInterval(timer);
     timer = setInterval(refresh, 1000 * Number(document.body.dataset.refreshS || 15));
   }
 
@@ -111,10 +113,32 @@
 
   // ------------------------------------------------------------------------------------------------ refreshing
 
+  // One refresh at a time: a click during one asks for another right after it.
+  let refreshing = false;
+  let again = false;
+
   async function refresh() {
+    if (refreshing) {
+      again = true;
+      return;
+    }
+    refreshing = true;
+    try {
+      await refreshOnce();
+    } finally {
+      refreshing = false;
+    }
+    if (again && caller) {
+      again = false;
+      await refresh();
+    }
+  }
+
+  async function refreshOnce() {
     try {
       const cameras = (await api("/v1/cameras?limit=100")).items;
       const statuses = await Promise.all(cameras.map((c) => api(`${cameraPath(c.id)}/calibration`)));
+      if (!caller) return; // the key was forgotten meanwhile
       if (!cameras.some((c) => c.id === selected)) selected = cameras.length ? cameras[0].id : null;
       drawCameras(cameras, statuses);
       $("camera").hidden = selected === null;
@@ -140,8 +164,8 @@
     if (status.status !== "calibrated" || !status.fx_px) return { text: "–", grade: "none" };
     const u = status.uncertainty || {};
     const relative = u.fx_std_px ? u.fx_std_px / status.fx_px : null;
-    const grade = relative === null ? "fair" : relative < 0.03 ? "good" : relative < 0.1 ? "fair" : "poor";
-    const parts = [grade];
+    const grade = relative === null ? "unknown" : relative < 0.03 ? "good" : relative < 0.1 ? "fair" : "poor";
+    const parts = [relative === null ? "no sigma" : grade];
     if (relative !== null) parts.push(`f ±${(100 * relative).toFixed(1)}%`);
     if (status.inliers && status.people_used) parts.push(`${Math.round((100 * status.inliers) / status.people_used)}% inliers`);
     return { text: parts.join(" · "), grade };
