@@ -256,6 +256,15 @@ def test_a_key_limited_to_one_camera_sees_only_it_in_a_narrow_window(served: Con
         driver.find_element("id", "sign-out").click()
         assert driver.execute_script("return sessionStorage.length") == 0
         assert driver.find_element("id", "login").is_displayed()
+        assert driver.execute_script("return document.querySelectorAll('#cameras tbody tr').length") == 0
+        # The admin's full view on the phone: charts and pictures stacked, still no sideways scrolling.
+        _open(driver, app.base, ADMIN_KEY)
+        _wait(driver, "document.querySelectorAll('#cameras tbody tr').length === 2", "both cameras listed")
+        driver.execute_script("document.querySelector('#cameras tr[data-camera=street] button').click()")
+        _wait(driver, _picture_loaded("frame-picture") + " && " + _picture_loaded("heatmap"), "street's pictures")
+        _wait(driver, "document.querySelectorAll('#history svg').length === 4", "street's history")
+        assert driver.execute_script("return document.documentElement.scrollWidth") <= 390
+        save_full_page(driver, _screenshots() / "console-narrow-admin-full.png")
 
 
 def test_a_wrong_key_is_refused_with_a_message(served: Console) -> None:

@@ -101,8 +101,16 @@
     clearInterval(timer);
     caller = null;
     selected = null;
+    // Nothing the key could read stays on the page for the next person at this screen.
     for (const { url } of shown.values()) URL.revokeObjectURL(url);
     shown.clear();
+    for (const img of document.querySelectorAll("img.picture")) {
+      img.removeAttribute("src");
+      img.hidden = true;
+    }
+    for (const id of ["history", "violations"]) $(id).replaceChildren();
+    for (const body of document.querySelectorAll("#dashboard tbody")) body.replaceChildren();
+    for (const id of ["history-camera", "frame-caption", "violations-total"]) $(id).textContent = "";
     $("dashboard").hidden = true;
     $("sign-out").hidden = true;
     $("login").hidden = false;
