@@ -4,14 +4,13 @@ A simulated camera streams frames until it is calibrated (several versions), a s
 webhook subscription fails against a closed port. An operator types the key and sees the cameras, the calibration
 history charts, the latest frame's top-down map, the violations and the heat map, and the failing deliveries; a
 key limited to one camera sees only that one; a wrong key gets an error. The key never shows up in a URL or a
-cookie. Screenshots are written to $POSEMETRY_CONSOLE_SCREENSHOTS (default: the test's temporary folder).
+cookie. Screenshots are written to $POSEMETRY_CONSOLE_SCREENSHOTS (default: /tmp/posemetry-console).
 """
 
 from __future__ import annotations
 
 import json
 import os
-import socket
 from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
@@ -24,19 +23,12 @@ import pytest
 from bench.simulate import SceneConfig, draw_scene
 from tests.support.app import coco_person
 from tests.support.browser import chromium, require_chromium, save_full_page
-from tests.support.serving import ADMIN_KEY, Served, clean_environment, serve
+from tests.support.serving import ADMIN_KEY, Served, clean_environment, free_port, serve
 from tests.support.shared import TOWN_CENTRE, model_dir_path
 
 FRAMES = 12
 PEOPLE_PER_FRAME = 10
 WAIT_S = 30
-
-
-def _closed_port() -> int:
-    """A local port nothing listens on: every delivery to it fails at once (connection refused)."""
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
 
 
 @dataclass(frozen=True)
@@ -68,7 +60,8 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Console]:
         settings["model_dir"] = str(models)
     with serve(tmp_path_factory.mktemp("console"), clean_environment(**settings)) as app:
         assert app.http("PUT", "/v1/cameras/lobby", {"image_width_px": 1280, "image_height_px": 720})[0] == 201
-        hook = {"url": f"http://127.0.0.1:{_closed_port()}/hooks", "event_types": ["violation.detected"]}
+        # Nothing listens on a port just freed: every delivery to it fails at once (connection refused).
+        hook = {"url": f"http://127.0.0.1:{free_port()}/hooks", "event_types": ["violation.detected"]}
         assert app.http("POST", "/v1/webhooks", hook)[0] == 201
         frame = _stream(app, "street")
         if image is not None:
