@@ -19,6 +19,7 @@ from service import __version__
 from service.calibration import routes as calibration
 from service.cameras import routes as cameras
 from service.cameras.cache import CameraCache
+from service.console import routes as console
 from service.dispatch import Dispatcher, NullDispatcher
 from service.distances import routes as distances
 from service.frames import routes as frames
@@ -26,12 +27,13 @@ from service.frames.writer import FrameWriter
 from service.health import metrics
 from service.health import routes as health
 from service.http.json_body import register_body_schemas
-from service.http.problems import PROBLEM_MEDIA_TYPE, BodyGuard, HeaderGuard, install_handlers
+from service.http.problems import PROBLEM_MEDIA_TYPE, PROBLEM_SCHEMA, BodyGuard, HeaderGuard, install_handlers
 from service.http.query_params import known_query_only
 from service.keys import routes as keys
 from service.keys.authenticator import Authenticator
 from service.keys.dependencies import AUTH_RESPONSE_DESCRIPTIONS, require_key
 from service.keys.middleware import AuthenticateBeforeBody
+from service.observability import redact
 from service.observability.collectors import SharedStateCollector
 from service.observability.http import RequestTelemetry
 from service.observability.metrics import exposition_registry
@@ -57,19 +59,6 @@ Admin keys create keys with `POST /v1/keys`; a key may be limited to some camera
 documentation (`/docs`, `/redoc`, `/openapi.json`) is public: it describes the API and holds no data.
 """
 
-PROBLEM_SCHEMA = {
-    "type": "object",
-    "properties": {
-        "type": {"type": "string", "format": "uri"},
-        "title": {"type": "string"},
-        "status": {"type": "integer"},
-        "detail": {"type": "string"},
-        "instance": {"type": "string"},
-        "request_id": {"type": "string", "description": "The request's id, as in the X-Request-ID header."},
-        "errors": {"type": "array", "items": {"type": "object"}},
-    },
-    "required": ["type", "title", "status", "detail"],
-}
 PROBLEM_RESPONSES: dict[int | str, dict[str, object]] = {
     "4XX": {"description": "Problem details (RFC 9457)", "content": {PROBLEM_MEDIA_TYPE: {"schema": PROBLEM_SCHEMA}}},
     "5XX": {"description": "Problem details (RFC 9457)", "content": {PROBLEM_MEDIA_TYPE: {"schema": PROBLEM_SCHEMA}}},
@@ -79,9 +68,10 @@ AUTH_RESPONSES: dict[int | str, dict[str, object]] = {
     for status, text in AUTH_RESPONSE_DESCRIPTIONS.items()
 }
 # Each room's routes, in the order the OpenAPI document lists them. Routers anyone may call: liveness and readiness,
-# for load balancers and orchestrators that hold no key.
-PUBLIC_ROUTERS = (health,)
-ROUTERS = (cameras, frames, pictures, calibration, distances, violations, webhooks, keys, metrics, health)
+# for load balancers and orchestrators that hold no key, and the operator console's page, which holds no data (its
+# script reads the API with the operator's key).
+PUBLIC_ROUTERS = (health, console)
+ROUTERS = (cameras, frames, pictures, calibration, distances, violations, webhooks, keys, metrics, health, console)
 
 
 def create_app(
@@ -139,6 +129,7 @@ def create_app(
     shared_state = SharedStateCollector(app.state.read_session_factory, queue_depths)
     app.state.metrics_registry = exposition_registry([shared_state])
     install_handlers(app)
+    redact.APP_SECRETS.add(settings.logged_secrets())
     app.add_middleware(
         BodyGuard,
         max_body_bytes=settings.max_body_bytes,

@@ -10,7 +10,7 @@ from typing import Any, Literal, get_args
 
 import numpy as np
 
-from service.domain import METRES_PER_FOOT
+from service.domain import feet_to_metres
 from service.geometry import DEFAULT_HEIGHT_M, CalibrationProblem, OpenCVLens
 from service.pose.model_files import POSE_MODELS
 
@@ -34,7 +34,7 @@ class Threshold:
 
     @property
     def metres(self) -> float:
-        return self.value * METRES_PER_FOOT if self.unit == "ft" else self.value
+        return feet_to_metres(self.value) if self.unit == "ft" else self.value
 
     def __str__(self) -> str:
         return f"{self.value:g} {self.unit}"

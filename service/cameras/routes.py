@@ -16,7 +16,7 @@ from service.cameras.schemas import (
     Distortion,
 )
 from service.cameras.service import apply_settings, require_camera
-from service.domain import METRES_PER_FOOT
+from service.domain import CONVERTED_DECIMALS, metres_to_feet
 from service.http.dependencies import CameraIdPath, DispatcherDep, ReadSessionDep, SessionDep, nudge_best_effort
 from service.http.links import camera_url
 from service.keys.dependencies import PrincipalDep
@@ -33,8 +33,9 @@ def camera_out(camera: Camera) -> CameraOut:
         image_height_px=camera.image_height_px,
         person_height_m=camera.person_height_m,
         equal_focal=camera.equal_focal,
-        distance_threshold_m=camera.distance_threshold_m,
-        distance_threshold_ft=camera.distance_threshold_m / METRES_PER_FOOT,
+        # Rounded on the way out too: cameras stored before conversions were rounded hold 1.8288000000000002.
+        distance_threshold_m=round(camera.distance_threshold_m, CONVERTED_DECIMALS),
+        distance_threshold_ft=metres_to_feet(camera.distance_threshold_m),
         known_focal_px=known_focal(camera),
         principal_point_px=principal_point(camera),
         distortion=None
@@ -65,12 +66,13 @@ def put_camera(
 ) -> CameraOut:
     """Create or update a camera (idempotent): 201 when created, 200 when it existed.
 
-    A changed image size makes stored evidence meaningless (other pixels), so the calibration is reset and the
-    evidence dropped. A changed principal point, known focal length or lens keeps the evidence but resets the
-    calibration (frames wait) and forces a re-solve: the old solution belongs to another camera model. A changed
-    height prior, focal assumption or camera height keeps the evidence and forces a re-solve; the current
-    calibration stays in use until it is replaced. Intrinsics must fit the image (a principal point inside it, a
-    focal length within 0.05-50 x its longer side), else 422.
+    A changed image size makes stored evidence meaningless (other pixels), so the calibration is reset, the
+    evidence dropped, and frames still waiting for pose or measuring fail with the reason. A changed principal
+    point, known focal length or lens keeps the evidence but withdraws the current calibration (frames wait) and
+    forces a re-solve: the old solution belongs to another camera model. A changed height prior, focal
+    assumption or camera height keeps the evidence and forces a re-solve; the current calibration stays in use
+    until it is replaced. Intrinsics must fit the image (a principal point inside it, a focal length within
+    0.05-50 x its longer side), else 422.
     """
     applied = apply_settings(session, camera_id, body)
     session.commit()

@@ -8,9 +8,9 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, Field, StrictBool, model_validator
 from pydantic_core import PydanticCustomError
 
-from service.domain import METRES_PER_FOOT
+from service.domain import feet_to_metres
 from service.geometry import DEFAULT_HEIGHT_M
-from service.http.schemas import FiniteFloat, Integer, Number, PointPx, StrictModel
+from service.http.schemas import Integer, Number, StrictModel
 
 MAX_IMAGE_SIDE_PX = 100_000
 # A focal length outside this many times the image's longer side is a typo, not a lens: 0.05 x is a 170-degree
@@ -21,6 +21,7 @@ DEFAULT_CAMERA_HEIGHT_TOLERANCE_M = 0.1
 # The error type of intrinsics that do not fit the image: valid on their own, refused for this image size.
 INTRINSICS_OUT_OF_IMAGE = "intrinsics_out_of_image"
 
+FiniteNumber = Annotated[float, Field(allow_inf_nan=False, strict=True)]
 PositiveFocal = Annotated[float, Field(gt=0, allow_inf_nan=False, strict=True)]
 
 
@@ -29,7 +30,7 @@ class Distortion(StrictModel):
     coordinates about the principal point. Keypoints are undistorted with it before solving and measuring."""
 
     model: Literal["opencv"] = Field(description="`opencv`: radial k1, k2(, k3) and tangential p1, p2.")
-    coefficients: list[FiniteFloat] = Field(
+    coefficients: list[FiniteNumber] = Field(
         min_length=4, max_length=5, description="[k1, k2, p1, p2] or [k1, k2, p1, p2, k3]."
     )
 
@@ -45,7 +46,7 @@ class DistanceThreshold(StrictModel):
 
     @property
     def metres(self) -> float:
-        return self.value * METRES_PER_FOOT if self.unit == "ft" else self.value
+        return feet_to_metres(self.value) if self.unit == "ft" else self.value
 
 
 DEFAULT_DISTANCE_THRESHOLD = DistanceThreshold(value=6, unit="ft")
@@ -76,7 +77,7 @@ class CameraSettings(StrictModel):
         description="The focal length in pixels if known, one value or [fx, fy], each within 0.05-50 x the image's "
         "longer side (then only the ground plane and what the focal length leaves open are solved).",
     )
-    principal_point_px: PointPx | None = Field(
+    principal_point_px: tuple[FiniteNumber, FiniteNumber] | None = Field(
         default=None,
         description="The principal point [cx, cy] in pixels (origin top-left), inside the image, if known. People "
         "alone cannot determine its offset across the horizon, which trades against the focal length and tilt: "

@@ -8,10 +8,10 @@ from typing import Any
 
 from sqlalchemy.orm import Session
 
-from service.calibration.repository import current_calibration, reset_calibration
+from service.calibration.repository import current_calibration, reset_calibration, withdraw_current
 from service.cameras import repository
 from service.cameras.schemas import CameraSettings
-from service.frames.repository import delete_kept_images
+from service.frames.repository import delete_kept_images, fail_unfinished_frames
 from service.http.links import camera_url
 from service.http.problems import ProblemError
 from service.store.models import Camera
@@ -77,13 +77,14 @@ def _priors(camera: Camera) -> tuple[object, ...]:
 def apply_settings(session: Session, camera_id: str, body: CameraSettings) -> SettingsApplied:
     """Create or update a camera in the caller's transaction.
 
-    A changed image size makes stored evidence meaningless (other pixels), so the calibration is reset and the
-    evidence dropped. A changed principal point, known focal length or lens keeps the evidence (the same pixels)
-    but resets the calibration and forces a re-solve: the current solution was found for another camera model,
-    and measuring with it (a principal point the user has just corrected, say) would mix the two; frames wait
-    for the re-solve instead. A changed height prior, focal assumption or camera height keeps the evidence and
-    the current calibration in use, and forces a re-solve that replaces it. A camera that stops keeping images
-    forgets the ones it kept (privacy).
+    A changed image size makes stored evidence meaningless (other pixels), so the calibration is reset (a new
+    epoch), the evidence dropped, and frames still waiting for pose or measuring fail with the reason. A changed
+    principal point, known focal length or lens keeps the evidence (the same pixels, the same epoch) but
+    withdraws the current calibration and forces a re-solve: the current solution was found for another camera
+    model, and measuring with it (a principal point the user has just corrected, say) would mix the two; frames
+    wait for the re-solve instead. A changed height prior, focal assumption or camera height keeps the evidence
+    and the current calibration in use, and forces a re-solve that replaces it. A camera that stops keeping
+    images forgets the ones it kept (privacy).
     """
     before = repository.get_camera(session, camera_id)
     before_keeps_images = before is not None and before.keep_images
@@ -111,7 +112,16 @@ def apply_settings(session: Session, camera_id: str, body: CameraSettings) -> Se
         if size_changed or old[1] != _intrinsics(camera):
             reason = "image size changed" if size_changed else "camera model changed"
             was_calibrated = current_calibration(session, camera_id) is not None
-            reset_calibration(session, camera_id, drop_evidence=size_changed)
+            if size_changed:
+                reset_calibration(session, camera_id, drop_evidence=True, reason="image_size_changed")
+                fail_unfinished_frames(
+                    session,
+                    camera_id,
+                    f"camera {camera_id!r} was resized to {body.image_width_px}x{body.image_height_px} px before "
+                    "this frame was measured",
+                )
+            else:
+                withdraw_current(session, camera_id)
             if was_calibrated:
                 deliveries = status_changed_deliveries(session, camera_id, None, "calibrated", reason)
             resolve = not size_changed

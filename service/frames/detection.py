@@ -15,8 +15,9 @@ from typing import TYPE_CHECKING
 
 from service.domain import DONE, FAILED, GONE, SKIPPED
 from service.frames.images import ImageError, decode
+from service.frames.ingest import record_detection_failure, record_detections
 from service.frames.keypoints import people_from_detections
-from service.frames.repository import frame_image, record_detection_failure, record_detections
+from service.frames.repository import frame_image
 from service.observability.logs import JOBS_LOGGER, log_context
 from service.observability.metrics import POSE_INFERENCE
 from service.observability.request_id import request_id_context

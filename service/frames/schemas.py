@@ -4,13 +4,24 @@ from __future__ import annotations
 
 import uuid
 from datetime import datetime
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from service.http.schemas import CLIENT_FRAME_ID_PATTERN, Keypoint, PointPx, StrictModel, Timestamp
+from service.cameras.schemas import MAX_IMAGE_SIDE_PX
+from service.http.schemas import CLIENT_FRAME_ID_PATTERN, Score, StrictModel, Timestamp
 
 COCO_KEYPOINTS = 17
+# Every pixel coordinate, whatever its score: finite and within ten times the largest image side of the origin. The
+# frames service then holds it to the camera's image (service.frames.service.people_for_camera); this bound alone
+# keeps every number storable (keypoints are packed as float32, whose range ends at 3.4e38: 1e39 with a score of 0
+# once failed a whole write batch) and is in the published schema, so a client learns it from the contract.
+COORDINATE_LIMIT_PX = 10 * MAX_IMAGE_SIDE_PX
+CoordinatePx = Annotated[
+    float, Field(ge=-COORDINATE_LIMIT_PX, le=COORDINATE_LIMIT_PX, allow_inf_nan=False, strict=True)
+]
+PointPx = tuple[CoordinatePx, CoordinatePx]
+Keypoint = tuple[CoordinatePx, CoordinatePx, Score]
 
 
 # The two forms of a person in the JSON schema, so that what the schema calls valid is what the validators accept:
@@ -173,3 +184,31 @@ class FrameOut(BaseModel):
     processed_at: datetime | None
     error: str | None
     result: FrameResult | None
+
+
+class FrameSummary(BaseModel):
+    """A frame in a list: its state and counts, without the people and pairs (`url` has those)."""
+
+    frame_id: uuid.UUID
+    camera_id: str
+    client_frame_id: str | None
+    source: Literal["keypoints", "image"]
+    timestamp: datetime
+    received_at: datetime
+    status: FrameStatus
+    people: int
+    violations: int | None = Field(description="Pairs closer than the threshold, once measured (null before).")
+    calibration_version: int | None
+    processed_at: datetime | None
+    error: str | None
+    image_kept: bool
+    url: str
+    links: dict[str, str] = Field(description="Related resources: overlay and top-down pictures.")
+
+
+class FrameList(BaseModel):
+    """One page of a camera's frames, newest first (by `timestamp`, then id); pass `next_before` as `before` for
+    the next page (null: last page)."""
+
+    items: list[FrameSummary]
+    next_before: str | None

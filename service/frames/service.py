@@ -8,13 +8,20 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Sequence
+import uuid
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+from functools import partial
 from typing import TYPE_CHECKING, Any
 
+from sqlalchemy.exc import SQLAlchemyError
+from sqlalchemy.orm import Session
+
+from service.calibration import moves
 from service.calibration.camera_model import calibration_from_version
-from service.calibration.repository import current_calibration
+from service.calibration.repository import current_calibration, movement_state
 from service.calibration.service import calibration_due
-from service.domain import DONE, GONE, PENDING, FrameOutcome, PersonIn, StoredCentres
+from service.domain import DONE, FAILED, GONE, PENDING, FrameOutcome, PersonIn, StoredCentres
 from service.frames.keypoints import person_from_centres, person_from_keypoints
 from service.frames.measure import FrameComputation, measure_people
 from service.frames.repository import frames_points, pending_frames, record_frame_outcomes
@@ -22,7 +29,7 @@ from service.frames.schemas import PersonObservation
 from service.http.problems import ProblemError, field_errors
 from service.observability.logs import JOBS_LOGGER
 from service.settings import Settings
-from service.store.db import EncodedJSON
+from service.store.db import EncodedJSON, is_database_unavailable
 from service.store.models import CalibrationVersion, Camera, Frame, clip_reason
 from service.store.sessions import read_session_factory, transaction
 from service.webhooks.events import announce, violation_deliveries
@@ -47,8 +54,9 @@ def people_for_camera(people: Sequence[PersonObservation], camera: Camera, setti
     """Posted people as store rows, after the checks that need the camera and the settings.
 
     Too many people is 413 (settings.max_people_per_frame). Coordinates more than half an image beyond an edge
-    are 422 with each bad field's location; keypoints with score 0 are exempt, since pose models put
-    placeholder coordinates on joints they did not find.
+    are 422 with each bad field's location, whatever their score: pose models put the joints they did not find
+    at placeholders inside or next to the image (0, 0 or -1, -1), never half an image away, and a number that
+    passes here must be one the store can keep (a score-0 keypoint at 1e39 once failed a whole write batch).
     """
     if len(people) > settings.max_people_per_frame:
         raise ProblemError(
@@ -76,8 +84,8 @@ def people_for_camera(people: Sequence[PersonObservation], camera: Camera, setti
     rows = []
     for index, person in enumerate(people):
         if person.keypoints is not None:
-            for k, (x, y, score) in enumerate(person.keypoints):
-                if score > 0 and not (low_x <= x <= high_x and low_y <= y <= high_y):
+            for k, (x, y, _score) in enumerate(person.keypoints):
+                if not (low_x <= x <= high_x and low_y <= y <= high_y):
                     far_outside([index, "keypoints", k], x, y)
             rows.append(person_from_keypoints(person.keypoints, size))
         else:
@@ -144,6 +152,8 @@ def frame_outcome(
 def measure_pending(settings: Settings, dispatcher: RedisDispatcher, camera_id: str) -> str:
     """Answer the camera's pending frames with its current calibration, a chunk at a time; then nudge a solve.
 
+    Each chunk is first shown to the movement test (service.calibration.moves): when it finds that the camera
+    moved, the frames from the move on stay pending for the new epoch's calibration and the rest are measured.
     An uncalibrated camera leaves its frames pending: the first calibration asks for them to be measured, so they
     are answered then (recomputed, not dropped). After FRAMES_JOB_BUDGET_S this stops and queues its own re-run,
     so a camera with a backlog shares the workers with the others. Each chunk's results are committed with their
@@ -163,15 +173,22 @@ def measure_pending(settings: Settings, dispatcher: RedisDispatcher, camera_id: 
                 break
             frames = pending_frames(session, camera_id, limit=FRAMES_CHUNK)
             people = frames_points(session, [frame.id for frame in frames])
-        outcomes = [frame_outcome(frame, people.get(frame.id, []), camera, calibration) for frame in frames]
-        if outcomes:
-            with transaction(settings) as session:
-                record_frame_outcomes(session, outcomes)
-                client_ids = {frame.id: frame.client_frame_id for frame in frames}
-                deliveries = violation_deliveries(session, camera, outcomes, settings, client_frame_ids=client_ids)
+            stored_test = movement_state(session, camera_id) if frames else None
+        watched = moves.watch(calibration, stored_test, frames, people) if frames else None
+        moved_at = None if watched is None else watched.moved_at
+        measured = [frame for frame in frames if moved_at is None or frame.timestamp < moved_at]
+        outcomes = [frame_outcome(frame, people.get(frame.id, []), camera, calibration) for frame in measured]
+        if watched is not None:
+            client_ids = {frame.id: frame.client_frame_id for frame in measured}
+
+            keep_watch = partial(moves.keep_watch, camera=camera, calibration=calibration, watched=watched)
+            outcomes, deliveries = store_outcomes(settings, camera, outcomes, client_ids, keep_watch)
             announce(dispatcher, deliveries)
-        for frame, measured in zip(frames, outcomes, strict=True):
-            _log_measured(frame, measured)
+        for frame, answered in zip(measured, outcomes, strict=True):
+            _log_measured(frame, answered)
+        if moved_at is not None:
+            outcome = PENDING  # uncalibrated in the new epoch: its first solve has the frames measured
+            break
         if len(frames) < FRAMES_CHUNK:
             break
         if time.monotonic() > deadline:
@@ -182,6 +199,53 @@ def measure_pending(settings: Settings, dispatcher: RedisDispatcher, camera_id: 
     ):
         dispatcher.calibration_requested(camera_id, False)
     return outcome
+
+
+def store_outcomes(
+    settings: Settings,
+    camera: Camera,
+    outcomes: list[FrameOutcome],
+    client_ids: dict[uuid.UUID, str | None],
+    also: Callable[[Session], list[uuid.UUID]] | None = None,
+) -> tuple[list[FrameOutcome], list[uuid.UUID]]:
+    """Store a chunk's results with their violation events and webhook deliveries; (outcomes as stored, deliveries).
+
+    One transaction for the chunk, which `also` joins (the movement test's state, or the move it found). If it fails
+    for any reason but an unavailable database, each frame is stored in a transaction of its own (and `also` in one
+    after them), and a frame that fails alone is stored `failed` with the reason: one frame the store cannot take
+    must not hold back its neighbours (a chunk that always failed would fail every retry of the job, and the
+    camera's frames behind it would wait for ever).
+    """
+    try:
+        with transaction(settings) as session:
+            record_frame_outcomes(session, outcomes)
+            deliveries = []
+            if outcomes:
+                deliveries = violation_deliveries(session, camera, outcomes, settings, client_frame_ids=client_ids)
+            return outcomes, deliveries + (also(session) if also is not None else [])
+    except Exception as exc:
+        if isinstance(exc, SQLAlchemyError) and is_database_unavailable(exc):
+            raise
+        log.warning("a chunk of %d results failed (%r); storing them one at a time", len(outcomes), exc)
+    stored, deliveries = [], []
+    for outcome in outcomes:
+        try:
+            with transaction(settings) as session:
+                record_frame_outcomes(session, [outcome])
+                deliveries += violation_deliveries(session, camera, [outcome], settings, client_frame_ids=client_ids)
+        except Exception as exc:
+            if isinstance(exc, SQLAlchemyError) and is_database_unavailable(exc):
+                raise
+            log.error("the result of frame %s could not be stored: %r", outcome.frame_id, exc, exc_info=exc)
+            reason = clip_reason(f"its result could not be stored ({type(exc).__name__}: {exc})")
+            outcome = replace(outcome, status=FAILED, result=None, violations=(), error=reason)
+            with transaction(settings) as session:
+                record_frame_outcomes(session, [outcome])
+        stored.append(outcome)
+    if also is not None:
+        with transaction(settings) as session:
+            deliveries += also(session)
+    return stored, deliveries
 
 
 def _log_measured(frame: Frame, outcome: FrameOutcome) -> None:

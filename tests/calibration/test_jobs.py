@@ -18,8 +18,8 @@ from service.calibration import service as calibration_service
 from service.calibration.repository import current_calibration
 from service.calibration.service import at_least_as_supported, key_camera_evidence
 from service.domain import CalibrationValues
+from service.frames.ingest import add_keypoint_frame
 from service.frames.keypoints import person_from_centres
-from service.frames.repository import add_keypoint_frame
 from service.queue import CALIBRATION_QUEUE, RedisDispatcher
 from service.settings import get_settings
 from service.store import CalibrationVersion, Frame, Observation, ViolationEvent
