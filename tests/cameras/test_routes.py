@@ -193,4 +193,5 @@ def test_a_new_principal_point_resets_the_calibration_and_forces_a_resolve_on_th
     assert dispatcher.calibrations == [(CAMERA, True), (CAMERA, True)]
     status = client.get(f"/v1/cameras/{camera}/calibration").json()
     assert status["status"] != "calibrated" and status["version"] is None  # never mixed with the old solution
+    assert status["epoch"] == 1  # the same view: the same epoch, whose people the re-solve uses
     assert client.get(f"/v1/cameras/{camera}").json()["usable_evidence_count"] == 3
