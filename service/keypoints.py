@@ -20,6 +20,14 @@ below therefore keep points for measurement generously and admit evidence conser
 
 Centres posted explicitly (`shoulder`/`ankle`) have no scores; the border, upright and size rules still apply.
 
+People found in an image come with the pose pipeline's own verdict (service/pose/assess.py), which sees the whole
+frame: which keypoints are trustworthy (seen, not inside the box of a person in front, an ankle only below a seen
+knee) and the posture. `person_from_detection` builds centres from trusted keypoints only, so an ankle guessed
+behind someone else never places a person (they are placed from their shoulders, or not at all), and only
+`standing` people can be evidence: `seated` ones (legs seen but folded) and `partial` ones (lower body not seen)
+are measured, never calibrated on. Their reasons start with `SEATED_REASON` / `PARTIAL_REASON`, which is how the
+store and the measuring side can tell them apart until the store keeps the posture itself.
+
 One rule needs the whole frame: a top-down pipeline runs the pose model on each detection's crop, and two
 detections can yield the same pose, either because the detector boxed one person twice (a whole-body and a
 partial box) or because a crop around one person also holds a more salient neighbour and the single-person pose
@@ -56,6 +64,8 @@ MIN_SEGMENT_PX = 8.0
 # pixels (~1-2 % of their height); two people pressed together differ by a shoulder width (~25 %).
 DUPLICATE_POSE_FRACTION = 0.05
 MIN_SHARED_KEYPOINTS = 4
+SEATED_REASON = "seated or crouching (legs seen but folded): a position, not calibration evidence"
+PARTIAL_REASON = "lower body not seen (hidden or out of view): placed from the shoulders, not calibration evidence"
 
 Point = tuple[float, float]
 
@@ -110,8 +120,21 @@ def person_from_keypoints(
 
 
 def person_from_detection(person: DetectedPerson, image_size_px: tuple[int, int]) -> PersonIn:
-    """A person the pose model found, as the store's row: its keypoints' verdict plus the detector's box and score."""
-    row = person_from_keypoints(person.coco_keypoints(), image_size_px)
+    """A person the pose model found, as the store's row: centres from trusted keypoints, the posture's verdict,
+    the raw keypoints (kept for re-analysis) and the detector's box and score."""
+    keypoints = person.coco_keypoints()
+    row = person_from_keypoints(keypoints, image_size_px)
+    if person.keypoint_trusted is not None:
+        trusted = [
+            [x, y, score if ok else 0.0] for (x, y, score), ok in zip(keypoints, person.keypoint_trusted, strict=True)
+        ]
+        shoulder, ankle = coco_centres(trusted)
+        reason = evidence_problem(shoulder, ankle, image_size_px)
+        if person.posture == "seated":
+            reason = SEATED_REASON
+        elif person.posture == "partial":
+            reason = PARTIAL_REASON
+        row = replace(row, shoulder_px=shoulder, ankle_px=ankle, unusable_reason=reason)
     return replace(row, box_px=tuple(float(v) for v in person.box_xyxy_px), detection_score=person.detection_score)
 
 

@@ -138,10 +138,11 @@ class Settings(BaseSettings):
         "against its pinned sha256 when loaded. `posemetry models fetch --dir DIR` fills it and `posemetry models "
         "check --dir DIR` verifies it; tests and CI point it at the repository's sibling `../shared/models`.",
     )
-    pose_model: Literal["thunder", "lightning"] = Field(
+    pose_model: Literal["thunder", "lightning", "auto"] = Field(
         default="thunder",
-        description="Per-person pose model: `thunder` (MoveNet Thunder, 256 px crops, more accurate) or "
-        "`lightning` (MoveNet Lightning, 192 px crops, about 3x faster per person, less reliable ankles).",
+        description="Per-person pose model: `thunder` (MoveNet Thunder, 256 px crops), `lightning` (MoveNet "
+        "Lightning, 192 px crops, about 4x less CPU per person) or `auto` (Thunder for people whose crop is at "
+        "least 256 px, Lightning for the smaller ones, which Thunder would only upsample).",
     )
     detector_input_px: int = Field(
         default=640,

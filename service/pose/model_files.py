@@ -20,6 +20,9 @@ from typing import Final, Literal
 
 PoseModelName = Literal["thunder", "lightning"]
 POSE_MODELS: Final[tuple[PoseModelName, ...]] = ("thunder", "lightning")
+PoseChoice = Literal["thunder", "lightning", "auto"]
+"""A pipeline's pose model: one of the two, or `auto` (each person by their size, service/pose/pipeline.py)."""
+POSE_CHOICES: Final[tuple[PoseChoice, ...]] = (*POSE_MODELS, "auto")
 FETCH_COMMAND: Final = "posemetry models fetch --dir {dir}"
 # Crop side each pose model takes (MoveNet SinglePose input).
 POSE_INPUT_PX: Final[dict[str, int]] = {"thunder": 256, "lightning": 192}

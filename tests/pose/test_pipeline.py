@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bench.towncentre import load_annotations
 from service.keypoints import coco_centres
 from service.pose.detector import PersonDetector
 from service.pose.model_files import DETECTOR, LIGHTNING, POSE_INPUT_PX, REGISTRY, PoseModelName
@@ -17,7 +18,6 @@ from service.pose.types import DetectedPerson
 from service.settings import Settings
 
 from .conftest import IMAGE_SIZE
-from .towncentre import load_annotations
 
 # Measured with the detector at 640: of the annotated pedestrians fully in view and >= 60 px tall, 37/46 = 0.80 on
 # TEST_FRAMES and 149/198 = 0.75 over all 22 clip frames are found at IoU >= 0.5 (0.955 at IoU >= 0.4). Most

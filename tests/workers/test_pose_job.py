@@ -143,7 +143,7 @@ def test_town_centre_calibrates_from_its_own_pedestrians(
     rotation and translation (tests/pose/towncentre.py). Measured here: fx 2735 px (+1.4 %, 1-sigma 68 px) and the
     normal 1.8 degrees off, from 150 people; the issue's bounds (10 %, 3 degrees) are asserted.
     """
-    from tests.pose.towncentre import load_calibration
+    from bench.towncentre import load_calibration
 
     truth = load_calibration(TOWN_CENTRE / "TownCentre-calibration-ci.txt")
     for path in sorted((TOWN_CENTRE / "frames").glob("clip_*.jpg")):

@@ -1,4 +1,4 @@
-"""Oxford Town Centre ground truth for tests and measurements: the published calibration and the annotated boxes.
+"""Oxford Town Centre ground truth for benchmarks and tests: the published calibration and the annotated boxes.
 
 Calibration file (`TownCentre-calibration-ci.txt`): focal lengths and principal point in pixels, a rotation
 quaternion (x, y, z, w), a translation and Brown distortion K1, K2, P1, P2. Which convention the numbers follow is
@@ -17,6 +17,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from service.geometry import DEFAULT_HEIGHT_M, Calibration
 
 
 @dataclass(frozen=True)
@@ -85,6 +87,26 @@ class TownCentreCalibration:
         depth = -self.ground_rho / (rays @ self.ground_normal)
         depth = np.where(depth > 0, depth, np.nan)
         return rays * depth[:, None]
+
+
+def as_calibration(town: TownCentreCalibration, height_m: float = DEFAULT_HEIGHT_M) -> Calibration:
+    """The published camera as the geometry's Calibration (lens distortion dropped: it moves no pixel by more than
+    ~2 % of a person's height), e.g. to guide the detector as a solved camera would."""
+    none = np.zeros((0, 3))
+    return Calibration(
+        fx=town.fx,
+        fy=town.fy,
+        cx=town.cx,
+        cy=town.cy,
+        normal=town.ground_normal,
+        rho=town.ground_rho,
+        image_size=(1920.0, 1080.0),
+        height_m=height_m,
+        points_bottom=none,
+        points_top=none,
+        heights=np.zeros(0),
+        inliers=np.zeros(0, dtype=bool),
+    )
 
 
 def load_calibration(path: Path) -> TownCentreCalibration:
