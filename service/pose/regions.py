@@ -59,6 +59,8 @@ MAX_TILE_INPUT_PX: Final = 1536
 """Longest side of one detector input; larger regions are tiled."""
 HEAD_TOP_PER_SHOULDER: Final = 1.28
 """Stature over ankle-to-shoulder height (the calibration's height prior): ~1.69 m / 1.32 m for adults."""
+SHOULDER_WIDTH_M: Final = 0.45
+"""An adult's shoulder width: the smallest a person appears, seen from straight above."""
 FOOT_MARGIN: Final = 0.12
 """Rows below a band's lowest feet row it still reads, as a fraction of the person height there (box bottoms
 scatter below the predicted feet: shoes, long coats, calibration error)."""
@@ -212,6 +214,17 @@ def standing_height_px(calibration: Calibration, feet_px: np.ndarray) -> np.ndar
     NaN where the pixel's ray does not meet the ground in front of the camera (at or above the horizon), or where
     the head top would lie behind the camera.
     """
+    return _standing(calibration, feet_px)[0]
+
+
+def person_size_px(calibration: Calibration, feet_px: np.ndarray) -> np.ndarray:
+    """(N,) how large a standing person with feet at each pixel appears: the length of their projected body
+    (feet to head, in any direction), or their shoulders' width where that is larger (seen from straight above,
+    near the nadir of a steep camera, a person is a head and shoulders). NaN where there is no ground."""
+    return _standing(calibration, feet_px)[1]
+
+
+def _standing(calibration: Calibration, feet_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     feet = np.asarray(feet_px, dtype=np.float64).reshape(-1, 2)
     normal = np.asarray(calibration.normal, dtype=np.float64)
     rays = np.c_[(feet[:, 0] - calibration.cx) / calibration.fx, (feet[:, 1] - calibration.cy) / calibration.fy]
@@ -219,11 +232,15 @@ def standing_height_px(calibration: Calibration, feet_px: np.ndarray) -> np.ndar
     along = rays @ normal
     with np.errstate(divide="ignore", invalid="ignore"):
         depth = np.where(along < -1e-9, -calibration.rho / along, np.nan)
-    ground = rays * depth[:, None]
-    head = ground + normal * (calibration.height_m * HEAD_TOP_PER_SHOULDER)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        head_row = np.where(head[:, 2] > 1e-6, calibration.fy * head[:, 1] / head[:, 2] + calibration.cy, np.nan)
-    return feet[:, 1] - head_row
+        ground = rays * depth[:, None]
+        head = ground + normal * (calibration.height_m * HEAD_TOP_PER_SHOULDER)
+        in_front = head[:, 2] > 1e-6
+        head_x = np.where(in_front, calibration.fx * head[:, 0] / head[:, 2] + calibration.cx, np.nan)
+        head_y = np.where(in_front, calibration.fy * head[:, 1] / head[:, 2] + calibration.cy, np.nan)
+        width = calibration.fx * SHOULDER_WIDTH_M / ground[:, 2]
+    extent = feet[:, 1] - head_y
+    size = np.fmax(np.hypot(feet[:, 0] - head_x, extent), width)
+    return extent, np.where(np.isfinite(extent), size, np.nan)
 
 
 @dataclass(frozen=True)
@@ -239,7 +256,9 @@ class _Band:
 def _row_heights(
     calibration: Calibration, feet_box: tuple[float, float, float, float]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(rows, smallest, tallest) standing height over _COLUMNS columns of each feet row of the box (NaN: no ground).
+    """(rows, smallest, tallest) person size (`person_size_px`) over _COLUMNS columns of each feet row of the box.
+
+    NaN where the row has no ground.
 
     The box may reach below the image: people there show their upper body.
     """
@@ -247,7 +266,7 @@ def _row_heights(
     columns = np.linspace(left, right, _COLUMNS)
     rows = np.arange(math.floor(top), math.ceil(bottom), _ROW_STEP_PX, dtype=np.float64)
     grid = np.stack(np.meshgrid(columns, rows), -1).reshape(-1, 2)
-    heights = standing_height_px(calibration, grid).reshape(len(rows), len(columns))
+    heights = person_size_px(calibration, grid).reshape(len(rows), len(columns))
     heights = np.where(heights > 0, heights, np.nan)
     seen = np.isfinite(heights).any(axis=1)
     smallest = np.full(len(rows), np.nan)
@@ -262,8 +281,10 @@ def _bands(
 ) -> list[_Band]:
     """Feet rows grouped, from the bottom of the frame up, into bands whose standing heights stay within
     `band_ratio` (or that are all too small for the target even at MAX_SCALE: one band at MAX_SCALE), nearest first.
-    Rows with no findable person (above the horizon, or people under MIN_VISIBLE_PX) end a band."""
-    findable = np.isfinite(smallest) & (smallest >= MIN_VISIBLE_PX)
+    Rows with no findable person (above the horizon, or everyone under MIN_VISIBLE_PX) end a band."""
+    findable = np.isfinite(tallest) & (tallest >= MIN_VISIBLE_PX)
+    # In a rolled or wide view a row's heights vary across it: the row is searched where its people are findable.
+    smallest = np.where(findable, np.fmax(smallest, MIN_VISIBLE_PX), np.nan)
     bands: list[_Band] = []
     k = len(rows) - 1
     while k >= 0:
@@ -271,10 +292,16 @@ def _bands(
             k -= 1
             continue
         bottom, low_h, high_h = k, smallest[k], tallest[k]
+        # A row can itself span a range of sizes (near a steep camera's nadir, or rolled): the band adds at most
+        # band_ratio to the spread of its first row.
+        ratio = band_ratio * high_h / low_h
         while k - 1 >= 0 and findable[k - 1]:
             candidate_low, candidate_high = min(low_h, smallest[k - 1]), max(high_h, tallest[k - 1])
-            capped = target_px / low_h >= MAX_SCALE
-            if candidate_high > band_ratio * candidate_low and not capped:
+            # People too small for the target even at MAX_SCALE share one band while they stay small, and people
+            # too large for it even at MIN_SCALE while they stay large.
+            all_small = candidate_high * MAX_SCALE <= target_px * band_ratio
+            all_large = candidate_low * MIN_SCALE >= target_px
+            if candidate_high > ratio * candidate_low and not (all_small or all_large):
                 break
             low_h, high_h = candidate_low, candidate_high
             k -= 1
@@ -313,7 +340,7 @@ def calibrated_plan(
     box = feet_box_px if feet_box_px is not None else (0.0, 0.0, float(width_px), 1.5 * height_px)
     rows, smallest, tallest = _row_heights(calibration, box)
     # Feet so far below the frame that even the head is out of view, or so high that half the body is above it.
-    off_frame = ~((rows - tallest < height_px) & (rows - 0.5 * tallest > 0))
+    off_frame = ~((rows - tallest < height_px) & (rows - 0.5 * smallest > 0))
     smallest[off_frame], tallest[off_frame] = np.nan, np.nan
     bands = _bands(rows, smallest, tallest, target_px, band_ratio)
     while _bands_cost(bands, box, image_size_px) > budget_px and target_px > MIN_TARGET_PX:
