@@ -13,6 +13,8 @@ standing one, whose shoulder-to-ankle segment then poisons the calibration). Rul
 - Ankles need their leg: an ankle is trusted only with its knee, and in order down the body (hip above knee
   above ankle in the image, as for any camera looking down at people: the vertical vanishing point lies below).
   A hidden leg is guessed as a whole, so a guessed ankle rarely has a confident knee above it.
+- In view: a person whose box reaches the bottom edge of the frame is cut by it, and the model guesses their
+  feet at the edge: their knees and ankles are not trusted.
 
 Posture, from the trusted keypoints (`Posture`):
 - `standing`: both shoulders and both ankles trusted, and the legs extended (hip-centre-to-ankle-centre at least
@@ -41,6 +43,7 @@ MIN_SCORE: Final = 0.3
 FRONT_MARGIN: Final = 0.05
 OCCLUDER_SHRINK: Final = 0.1
 LEG_TO_TORSO: Final = 1.0
+BOTTOM_EDGE_PX: Final = 2.0
 ORDER_TOLERANCE: Final = 0.05
 """Slack of the hip-above-knee-above-ankle order, as a fraction of the box height."""
 
@@ -73,11 +76,17 @@ def _occluders(boxes: np.ndarray, index: int) -> np.ndarray:
 
 
 def assess_person(
-    keypoints_px: np.ndarray, scores: np.ndarray, box_xyxy: Sequence[float], occluders: np.ndarray
+    keypoints_px: np.ndarray,
+    scores: np.ndarray,
+    box_xyxy: Sequence[float],
+    occluders: np.ndarray,
+    image_height_px: float | None = None,
 ) -> Assessment:
     """Trusted keypoints and posture of one person, given the (shrunk) boxes of the people in front."""
     points = np.asarray(keypoints_px, dtype=np.float64).reshape(17, 2)
     seen = np.asarray(scores, dtype=np.float64).reshape(17) >= MIN_SCORE
+    if image_height_px is not None and box_xyxy[3] >= image_height_px - BOTTOM_EDGE_PX:
+        seen[list(KNEES + ANKLES)] = False  # cut by the frame: the legs below it are guesses
     inside = np.zeros(17, dtype=bool)
     for left, top, right, bottom in np.asarray(occluders, dtype=np.float64).reshape(-1, 4):
         inside |= (points[:, 0] > left) & (points[:, 0] < right) & (points[:, 1] > top) & (points[:, 1] < bottom)
@@ -126,7 +135,12 @@ def _bent(points: np.ndarray, trusted: np.ndarray) -> bool:
     return float(np.hypot(*(low - hip))) < LEG_TO_TORSO * torso
 
 
-def assess_frame(boxes_xyxy: np.ndarray, keypoints_px: np.ndarray, scores: np.ndarray) -> list[Assessment]:
+def assess_frame(
+    boxes_xyxy: np.ndarray, keypoints_px: np.ndarray, scores: np.ndarray, image_height_px: float | None = None
+) -> list[Assessment]:
     """One assessment per person of a frame (boxes (N, 4), keypoints (N, 17, 2), scores (N, 17))."""
     boxes = np.asarray(boxes_xyxy, dtype=np.float64).reshape(-1, 4)
-    return [assess_person(keypoints_px[i], scores[i], boxes[i], _occluders(boxes, i)) for i in range(len(boxes))]
+    return [
+        assess_person(keypoints_px[i], scores[i], boxes[i], _occluders(boxes, i), image_height_px)
+        for i in range(len(boxes))
+    ]

@@ -133,7 +133,7 @@ class TopDownPose:
         boxes = detections.boxes_xyxy_px
         models = self._models_for(boxes)
         poses = self._read_poses(image, boxes, models)
-        assessments = assess_frame(boxes, poses.keypoints_px, poses.scores)
+        assessments = assess_frame(boxes, poses.keypoints_px, poses.scores, image.shape[0])
         self.last_times = self._stage_times(times, time.perf_counter() - start, time.process_time() - start_cpu)
         self.last_times.people = len(boxes)
         self.last_times.thunder_people = models.count("thunder")

@@ -125,3 +125,8 @@ def test_no_guessed_ankle_and_no_impossible_distance_on_town_centre_frame_54(
     result = measure_people(rows, calibration, distance_threshold_m=1.8288).result
     closest = min(p.distance_m for p in result.pairs if p.distance_m is not None)
     assert closest > 0.3
+
+
+def test_legs_cut_by_the_bottom_of_the_frame_are_not_trusted() -> None:
+    result = assess_person(STANDING, SEEN, (455.0, 295.0, 545.0, 1080.0), np.zeros((0, 4)), image_height_px=1080)
+    assert not result.trusted[13:].any() and result.trusted[5:7].all() and result.posture == "partial"

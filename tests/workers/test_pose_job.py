@@ -64,7 +64,9 @@ def test_pose_job_stores_people_once_and_drops_the_image(
         people = session.query(Observation).filter_by(frame_id=frame_id).order_by(Observation.person_index).all()
         assert frame.people == len(people) >= 10  # about 13-17 pedestrians in this frame
         usable = [p for p in people if p.usable]
-        assert len(usable) >= 6
+        # 5 measured with Thunder since only standing people with trusted ankles are evidence (8 before: one with
+        # an unseen knee, one cut by the frame's bottom edge and one repeated detection no longer count).
+        assert len(usable) >= 5
         for person in people:
             left, top, right, bottom = person.box_px
             assert 0 <= left < right <= 1920 and 0 <= top < bottom <= 1080
