@@ -167,7 +167,7 @@ def pose_lines(result: PoseBenchmark) -> list[str]:
     lines += [
         "  (ms per frame, means unless noted; cpu: process CPU time, all threads; detector: the plain whole-frame",
         "  pass; tiling: every other detector region plus merging; pose: crops, MoveNet and the keypoint assessment;",
-        "  thunder: people read by Thunder (auto: crops of 256 px and more); MPx: detector input per frame;",
+        "  thunder: people read by Thunder (auto: crops of 384 px and more); MPx: detector input per frame;",
         "  verdict: wall time, or CPU time / 1.85 (an idle 2-core machine), whichever is lower)",
     ]
     return lines

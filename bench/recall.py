@@ -33,10 +33,10 @@ from typing import Final
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from service.geometry import Calibration
+from service.geometry import DEFAULT_HEIGHT_M, Calibration
 from service.pose.merge import inside_fraction, iou_matrix
 
-from .towncentre import Annotation, as_calibration, load_annotations, load_calibration
+from .towncentre import Annotation, as_calibration, camera, load_annotations, load_calibration
 
 Progress = Callable[[str], None]
 POLICIES: Final = ("plain", "uncalibrated", "calibrated")
@@ -188,21 +188,9 @@ def load_atrium_annotation(path: Path) -> dict[str, list[dict]]:
 def calibration_from_json(path: Path, height_m: float | None = None) -> Calibration:
     """A calibration.json written by `posemetry analyze`, as the geometry's Calibration."""
     data = json.loads(Path(path).read_text())
-    none = np.zeros((0, 3))
-    return Calibration(
-        fx=data["fx_px"],
-        fy=data["fy_px"],
-        cx=data["cx_px"],
-        cy=data["cy_px"],
-        normal=np.asarray(data["normal"], dtype=np.float64),
-        rho=data["rho_m"],
-        image_size=tuple(float(v) for v in FRAME_SIZE),  # type: ignore[arg-type]
-        height_m=height_m or data.get("options", {}).get("height_m", 1.32),
-        points_bottom=none,
-        points_top=none,
-        heights=np.zeros(0),
-        inliers=np.zeros(0, dtype=bool),
-    )
+    height = height_m or data.get("options", {}).get("height_m", DEFAULT_HEIGHT_M)
+    normal = np.asarray(data["normal"], dtype=np.float64)
+    return camera(data["fx_px"], data["fy_px"], data["cx_px"], data["cy_px"], normal, data["rho_m"], FRAME_SIZE, height)
 
 
 def run_recall_benchmark(

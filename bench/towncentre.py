@@ -89,24 +89,38 @@ class TownCentreCalibration:
         return rays * depth[:, None]
 
 
-def as_calibration(town: TownCentreCalibration, height_m: float = DEFAULT_HEIGHT_M) -> Calibration:
-    """The published camera as the geometry's Calibration (lens distortion dropped: it moves no pixel by more than
-    ~2 % of a person's height), e.g. to guide the detector as a solved camera would."""
+def camera(
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    normal: np.ndarray,
+    rho: float,
+    image_size: tuple[float, float],
+    height_m: float = DEFAULT_HEIGHT_M,
+) -> Calibration:
+    """A camera as the geometry's Calibration, without the per-person arrays of a solve (a known or stored camera)."""
     none = np.zeros((0, 3))
     return Calibration(
-        fx=town.fx,
-        fy=town.fy,
-        cx=town.cx,
-        cy=town.cy,
-        normal=town.ground_normal,
-        rho=town.ground_rho,
-        image_size=(1920.0, 1080.0),
+        fx=fx,
+        fy=fy,
+        cx=cx,
+        cy=cy,
+        normal=np.asarray(normal, dtype=np.float64),
+        rho=rho,
+        image_size=(float(image_size[0]), float(image_size[1])),
         height_m=height_m,
         points_bottom=none,
         points_top=none,
         heights=np.zeros(0),
         inliers=np.zeros(0, dtype=bool),
     )
+
+
+def as_calibration(town: TownCentreCalibration, height_m: float = DEFAULT_HEIGHT_M) -> Calibration:
+    """The published camera as the geometry's Calibration (lens distortion dropped: it moves no pixel by more than
+    ~2 % of a person's height), e.g. to guide the detector as a solved camera would."""
+    return camera(town.fx, town.fy, town.cx, town.cy, town.ground_normal, town.ground_rho, (1920, 1080), height_m)
 
 
 def load_calibration(path: Path) -> TownCentreCalibration:

@@ -139,10 +139,10 @@ class Settings(BaseSettings):
         "check --dir DIR` verifies it; tests and CI point it at the repository's sibling `../shared/models`.",
     )
     pose_model: Literal["thunder", "lightning", "auto"] = Field(
-        default="thunder",
-        description="Per-person pose model: `thunder` (MoveNet Thunder, 256 px crops), `lightning` (MoveNet "
-        "Lightning, 192 px crops, about 4x less CPU per person) or `auto` (Thunder for people whose crop is at "
-        "least 256 px, Lightning for the smaller ones, which Thunder would only upsample).",
+        default="auto",
+        description="Per-person pose model: `auto` (each person by size: Thunder for crops of 384 px and more, "
+        "which Lightning would have to halve, Lightning for the rest), `thunder` (MoveNet Thunder, 256 px crops, "
+        "for everyone) or `lightning` (MoveNet Lightning, 192 px crops, about 4x less CPU per person).",
     )
     detector_input_px: int = Field(
         default=640,

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Final
 
 import numpy as np
@@ -331,7 +331,8 @@ def calibrated_plan(
     those rows get the uncalibrated policy's finer pass. When the plan costs more than `budget_px` detector input
     pixels, the target shrinks (never below MIN_TARGET_PX) until it fits: every band keeps the same apparent person
     size, which spends the budget evenly on the recall curve; if even that is too much, the farthest bands (the
-    smallest people, the worst recall per pixel) are dropped. A calibration that leaves nothing to search gets the
+    smallest people, the worst recall per pixel) are dropped, and a last band too costly on its own is searched at
+    the scale the budget allows. A calibration that leaves nothing to search gets the
     uncalibrated plan.
     """
     if image_size_px is None:
@@ -348,6 +349,10 @@ def calibrated_plan(
         bands = _bands(rows, smallest, tallest, target_px, band_ratio)
     while len(bands) > 1 and _bands_cost(bands, box, image_size_px) > budget_px:
         bands = bands[:-1]
+    while bands and _bands_cost(bands, box, image_size_px) > budget_px and bands[0].scale > MIN_SCALE:
+        # One band left and still too costly (a steep view whose every row is near): below the target, to budget.
+        shrink = math.sqrt(budget_px / _bands_cost(bands, box, image_size_px)) * 0.98
+        bands = [replace(bands[0], scale=max(MIN_SCALE, bands[0].scale * shrink))]
     plan = [region for band in bands for region in _band_regions(band, box, image_size_px)]
     if feet_box_px is not None:
         plan += _unsearched_rows(bands, box, image_size_px)
