@@ -163,6 +163,19 @@ def check_files(model_dir: Path, keys: tuple[str, ...] | None = None) -> dict[st
     return {spec.file_name: file_problem(model_dir, spec) for spec in specs}
 
 
+def resolve_choice(model_dir: Path | str, choice: PoseChoice) -> list[ModelPaths]:
+    """Verified paths for a pipeline's pose choice (`auto` needs both MoveNets); one `ModelFilesError` naming every
+    bad file otherwise."""
+    if choice not in POSE_CHOICES:
+        raise ValueError(f"unknown pose model {choice!r}; expected one of {', '.join(POSE_CHOICES)}")
+    models: tuple[PoseModelName, ...] = POSE_MODELS if choice == "auto" else (choice,)
+    directory = Path(model_dir).expanduser()
+    problems = {name: why for name, why in check_files(directory, ("detector", *models)).items() if why}
+    if problems:
+        raise ModelFilesError(directory, problems)
+    return [resolve_models(directory, model) for model in models]
+
+
 def resolve_models(model_dir: Path | str, pose_model: PoseModelName) -> ModelPaths:
     """Verified paths of the detector and the chosen pose model; `ModelFilesError` naming every bad file otherwise."""
     if pose_model not in POSE_MODELS:

@@ -23,7 +23,7 @@ import numpy as np
 
 from .assess import assess_frame
 from .detector import DEFAULT_INPUT_PX, DEFAULT_SCORE_THRESHOLD, Detections, PersonDetector, RegionTimes
-from .model_files import POSE_INPUT_PX, PoseChoice, resolve_models
+from .model_files import POSE_INPUT_PX, PoseChoice, resolve_choice
 from .movenet import CropMode, MoveNet, PoseOutput, crop_window
 from .regions import UNCALIBRATED_SCALES, Region, calibrated_plan, plan_cost, uncalibrated_plan, zoom_regions
 from .types import COCO17_KEYPOINTS, DetectedPerson
@@ -86,8 +86,7 @@ class TopDownPose:
     last_plan: list[Region] = field(init=False, default_factory=list)
 
     def __post_init__(self) -> None:
-        models = ("thunder", "lightning") if self.pose_model == "auto" else (self.pose_model,)
-        paths = [resolve_models(self.model_dir, model) for model in models]
+        paths = resolve_choice(self.model_dir, self.pose_model)
         self.detector = PersonDetector(
             paths[0].detector,
             input_px=self.detector_input_px,
