@@ -1,10 +1,11 @@
 """Pose-pipeline cost on real surveillance frames: detector / tiling / pose split, per pose model and detector plan.
 
 Target (issue 17): <= 100 ms per Oxford Town Centre 1080p frame with the default pose model on 2 cores, tiling
-included. Frames are the Town Centre clip frames (`clip_*.jpg`), decoded once up front so JPEG decoding is not
-timed. Each configuration (pose model x detector plan) runs on each frame in turn, so load from other processes
-hits all alike. Plans: `uncalibrated` (the pipeline's fixed policy for a camera without a calibration) and
-`calibrated` (guided by Town Centre's published calibration, as a solved camera would guide it).
+included. Frames are the Town Centre clip frames (`clip_*.jpg`; with `--frames`, another folder's `*.jpg`, e.g.
+the atrium's with `--plans uncalibrated`), decoded once up front so JPEG decoding is not timed. Each
+configuration (pose model x detector plan) runs on each frame in turn, so load from other processes hits all
+alike. Plans: `uncalibrated` (the pipeline's fixed policy for a camera without a calibration) and `calibrated`
+(guided by Town Centre's published calibration, as a solved camera would guide it).
 
 On a machine shared with other work, wall time is unreliable: the report gives the process CPU time (all threads)
 per frame and per stage beside the wall time, `min` wall times, and the load average while it ran. On an idle
@@ -72,9 +73,9 @@ class PoseBenchmark:
 def _load_frames(frames_dir: Path) -> list[np.ndarray]:
     import cv2
 
-    paths = sorted(Path(frames_dir).glob("clip_*.jpg"))
+    paths = sorted(Path(frames_dir).glob("clip_*.jpg")) or sorted(Path(frames_dir).glob("*.jpg"))
     if not paths:
-        raise FileNotFoundError(f"no clip_*.jpg frames in {frames_dir}")
+        raise FileNotFoundError(f"no clip_*.jpg (or other .jpg) frames in {frames_dir}")
     frames = [cv2.imread(str(p)) for p in paths]
     missing = [str(p) for p, f in zip(paths, frames, strict=True) if f is None]
     if missing:
@@ -146,7 +147,7 @@ def pose_lines(result: PoseBenchmark) -> list[str]:
     load = " / ".join(f"{a:.2f}" for a in (result.load_before[0], result.load_after[0]))
     lines = [
         f"pose pipeline: RTMDet-nano (plain pass @ {result.detector_input_px}) + MoveNet per person, onnxruntime CPU, "
-        f"{result.threads} threads; {result.frames} Town Centre 1080p frames x {result.repeats} passes; "
+        f"{result.threads} threads; {result.frames} frames x {result.repeats} passes; "
         f"1-min load average before / after: {load}",
         f"  {'model':<9} {'plan':<12} {'wall':>6} {'min':>6} {'p90':>6} {'cpu':>6} | {'cpu: detector':>13} "
         f"{'tiling':>6} {'pose':>6} | {'wall: det':>9} {'tiling':>6} {'pose':>6} | {'people':>6} {'thunder':>7} "
