@@ -308,15 +308,12 @@ def run_analysis(path: Path, out_dir: Path, options: AnalyzeOptions, observer: O
 
     observer.begin("calibration", 1)
     started = time.perf_counter()
-    # Without a guided pass this is the answer; before one, only a guide for where and how large people appear.
-    evidence, solve = calibrate_frames(
-        frames, source.image_size_px, options, min_people=0 if options.guided else options.min_people
-    )
+    # Fewer people than --min-people give no camera: none to report, and none to guide a second pass (a rough
+    # camera would steer the search wrong).
+    evidence, solve = calibrate_frames(frames, source.image_size_px, options, min_people=options.min_people)
     times["calibration"] = time.perf_counter() - started
     observer.advance(people=solve.people_used)
-    # A rough first camera (fewer people than a solve needs) would steer the search wrong: then no guided pass.
-    if options.guided and solve.calibration is not None and len(evidence) >= options.min_people:
-        assert solve.calibration is not None
+    if options.guided and solve.calibration is not None:
         started = time.perf_counter()
         box = feet_box(frames, source.image_size_px)
         first_people = sum(len(f.people) for f in frames)
