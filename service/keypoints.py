@@ -34,8 +34,10 @@ partial box) or because a crop around one person also holds a more salient neigh
 model reads the neighbour. The second pose is then a copy of the first: measured, it is a phantom person a few
 centimetres from the real one (a false violation in every such frame; seen on the Oxford Town Centre clip in
 most frames). `people_from_detections` therefore drops the points of a pose that repeats a more confident
-detection's pose (median distance between their keypoints under `DUPLICATE_POSE_FRACTION` of the box height):
-the detection is kept, with the reason, but is neither evidence nor placed.
+detection's pose (median distance between their keypoints under `DUPLICATE_POSE_FRACTION` of the box height, or
+the shoulder or ankle centre that would place them that close to the other's: two boxes of a person cut by the
+frame's edge agree on little but their shoulders): the detection is kept, with the reason, but is neither
+evidence nor placed.
 """
 
 from __future__ import annotations
@@ -150,15 +152,19 @@ def person_from_centres(shoulder: Point | None, ankle: Point | None, image_size_
 
 
 def _same_pose(a: PersonIn, b: PersonIn) -> bool:
-    """Whether two detections' keypoints describe one pose (see the module docstring)."""
+    """Whether two detections' keypoints describe one pose (see the module docstring), or place them at one point."""
     if a.keypoints is None or b.keypoints is None or a.box_px is None or b.box_px is None:
         return False
+    scale_px = max(a.box_px[3] - a.box_px[1], b.box_px[3] - b.box_px[1])
+    for point_a, point_b in ((a.shoulder_px, b.shoulder_px), (a.ankle_px, b.ankle_px)):
+        if point_a is not None and point_b is not None:
+            if math.hypot(point_a[0] - point_b[0], point_a[1] - point_b[1]) < DUPLICATE_POSE_FRACTION * scale_px:
+                return True
     ka, kb = np.asarray(a.keypoints, dtype=float), np.asarray(b.keypoints, dtype=float)
     shared = (ka[:, 2] >= MIN_SCORE) & (kb[:, 2] >= MIN_SCORE)
     if shared.sum() < MIN_SHARED_KEYPOINTS:
         return False
     gap_px = float(np.median(np.hypot(*(ka[shared, :2] - kb[shared, :2]).T)))
-    scale_px = max(a.box_px[3] - a.box_px[1], b.box_px[3] - b.box_px[1])
     return gap_px < DUPLICATE_POSE_FRACTION * scale_px
 
 
