@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from .merge import merge_boxes
-from .regions import STRIDE_PX, Region
+from .regions import STRIDE_PX, Region, ceil_to
 from .sessions import make_session
 
 DEFAULT_INPUT_PX: Final = 640
@@ -64,7 +64,7 @@ def letterbox(image_bgr: np.ndarray, size_px: int, *, square: bool = True) -> tu
     height, width = image_bgr.shape[:2]
     ratio = size_px / max(height, width)
     new_w, new_h = max(1, round(width * ratio)), max(1, round(height * ratio))
-    padded = (size_px, size_px) if square else (_ceil_to(new_w, STRIDE_PX), _ceil_to(new_h, STRIDE_PX))
+    padded = (size_px, size_px) if square else (ceil_to(new_w, STRIDE_PX), ceil_to(new_h, STRIDE_PX))
     return _normalised(image_bgr, (new_w, new_h), padded, ratio), Letterbox(ratio=ratio, size_px=size_px)
 
 
@@ -74,7 +74,7 @@ def region_tensor(image_bgr: np.ndarray, region: Region) -> np.ndarray:
     A whole-frame region at scale S / longer side is exactly the stride-padded letterbox at S.
     """
     new_w, new_h = region.input_size
-    padded = (_ceil_to(new_w, STRIDE_PX), _ceil_to(new_h, STRIDE_PX))
+    padded = (ceil_to(new_w, STRIDE_PX), ceil_to(new_h, STRIDE_PX))
     return _normalised(image_bgr[region.y0 : region.y1, region.x0 : region.x1], (new_w, new_h), padded, region.scale)
 
 
@@ -90,10 +90,6 @@ def _normalised(image_bgr: np.ndarray, size: tuple[int, int], padded: tuple[int,
     tensor[0, :, new_h:, :] = _PAD_NORMALISED[:, None, None]
     tensor[0, :, :new_h, new_w:] = _PAD_NORMALISED[:, None, None]
     return tensor
-
-
-def _ceil_to(value: int, multiple: int) -> int:
-    return -(-value // multiple) * multiple
 
 
 @dataclass(frozen=True)

@@ -99,11 +99,6 @@ class TopDownPose:
         }
         self.name = f"rtmdet-nano@{self.detector_input_px}+movenet-{self.pose_model}"
 
-    @property
-    def movenet(self) -> MoveNet:
-        """The pose model of a single-model estimator (the smaller one for `auto`)."""
-        return self.movenets["lightning"] if "lightning" in self.movenets else self.movenets["thunder"]
-
     def plan(
         self,
         image_size_px: tuple[int, int],

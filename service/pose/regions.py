@@ -59,6 +59,8 @@ MAX_TILE_INPUT_PX: Final = 1536
 """Longest side of one detector input; larger regions are tiled."""
 HEAD_TOP_PER_SHOULDER: Final = 1.28
 """Stature over ankle-to-shoulder height (the calibration's height prior): ~1.69 m / 1.32 m for adults."""
+MAX_SPREAD: Final = 1.25 * FAVOURITE_PX[1] / TARGET_PX
+"""Largest ratio of person sizes one band may hold: from the target to the end of the detector's plateau (320 px)."""
 SHOULDER_WIDTH_M: Final = 0.45
 """An adult's shoulder width: the smallest a person appears, seen from straight above."""
 FOOT_MARGIN: Final = 0.12
@@ -110,7 +112,7 @@ class Region:
     def input_pixels(self) -> int:
         """Pixels of the padded detector input: what the region costs (detector time is linear in it)."""
         width, height = self.input_size
-        return _ceil_to(width, STRIDE_PX) * _ceil_to(height, STRIDE_PX)
+        return ceil_to(width, STRIDE_PX) * ceil_to(height, STRIDE_PX)
 
     def owns(self, boxes_xyxy: np.ndarray) -> np.ndarray:
         """(N,) bool: which image-pixel boxes found in this region are its own (anchored in the core, not cut)."""
@@ -131,7 +133,8 @@ class Region:
         return mine
 
 
-def _ceil_to(value: int, multiple: int) -> int:
+def ceil_to(value: int, multiple: int) -> int:
+    """The smallest multiple of `multiple` not below `value`."""
     return -(-value // multiple) * multiple
 
 
@@ -265,14 +268,16 @@ def _row_heights(
     left, top, right, bottom = feet_box
     columns = np.linspace(left, right, _COLUMNS)
     rows = np.arange(math.floor(top), math.ceil(bottom), _ROW_STEP_PX, dtype=np.float64)
-    grid = np.stack(np.meshgrid(columns, rows), -1).reshape(-1, 2)
-    heights = person_size_px(calibration, grid).reshape(len(rows), len(columns))
-    heights = np.where(heights > 0, heights, np.nan)
-    seen = np.isfinite(heights).any(axis=1)
+    # Each sampled row stands for the feet rows down to the next one: both ends are sampled.
+    ends = np.concatenate([rows, rows + _ROW_STEP_PX])
+    grid = np.stack(np.meshgrid(columns, ends), -1).reshape(-1, 2)
+    sizes = person_size_px(calibration, grid).reshape(2, len(rows), len(columns))
+    sizes = np.where(sizes > 0, sizes, np.nan).transpose(1, 0, 2).reshape(len(rows), -1)
+    seen = np.isfinite(sizes).any(axis=1)
     smallest = np.full(len(rows), np.nan)
     tallest = np.full(len(rows), np.nan)
-    smallest[seen] = np.nanmin(heights[seen], axis=1)
-    tallest[seen] = np.nanmax(heights[seen], axis=1)
+    smallest[seen] = np.nanmin(sizes[seen], axis=1)
+    tallest[seen] = np.nanmax(sizes[seen], axis=1)
     return rows, smallest, tallest
 
 
@@ -293,8 +298,9 @@ def _bands(
             continue
         bottom, low_h, high_h = k, smallest[k], tallest[k]
         # A row can itself span a range of sizes (near a steep camera's nadir, or rolled): the band adds at most
-        # band_ratio to the spread of its first row.
-        ratio = band_ratio * high_h / low_h
+        # band_ratio to the spread of its first row, within the detector's window (a row wider than the window on
+        # its own is a band of its own: horizontal bands cannot split it).
+        ratio = min(band_ratio * high_h / low_h, max(high_h / low_h, MAX_SPREAD))
         while k - 1 >= 0 and findable[k - 1]:
             candidate_low, candidate_high = min(low_h, smallest[k - 1]), max(high_h, tallest[k - 1])
             # People too small for the target even at MAX_SCALE share one band while they stay small, and people

@@ -182,7 +182,7 @@ def test_concurrent_and_batched_crops_match_the_plain_loop(
     loop = MoveNet(path, "lightning", threads=2, crops="loop")
     concurrent = MoveNet(path, "lightning", threads=2, crops="concurrent")
     batched = MoveNet(path, "lightning", threads=2, crops="batched")
-    assert lightning.movenet.crop_mode == "concurrent"  # the default
+    assert lightning.movenets["lightning"].crop_mode == "concurrent"  # the default
     assert batched.batched, "the split graph failed its load-time check against the original"
     image = town_frames[90]
     boxes = lightning.detector(image).boxes_xyxy_px
