@@ -138,10 +138,11 @@ class Settings(BaseSettings):
         "against its pinned sha256 when loaded. `posemetry models fetch --dir DIR` fills it and `posemetry models "
         "check --dir DIR` verifies it; tests and CI point it at the repository's sibling `../shared/models`.",
     )
-    pose_model: Literal["thunder", "lightning"] = Field(
-        default="thunder",
-        description="Per-person pose model: `thunder` (MoveNet Thunder, 256 px crops, more accurate) or "
-        "`lightning` (MoveNet Lightning, 192 px crops, about 3x faster per person, less reliable ankles).",
+    pose_model: Literal["thunder", "lightning", "auto"] = Field(
+        default="auto",
+        description="Per-person pose model: `auto` (each person by size: Thunder for crops of 384 px and more, "
+        "which Lightning would have to halve, Lightning for the rest), `thunder` (MoveNet Thunder, 256 px crops, "
+        "for everyone) or `lightning` (MoveNet Lightning, 192 px crops, about 4x less CPU per person).",
     )
     detector_input_px: int = Field(
         default=640,

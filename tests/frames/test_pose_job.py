@@ -47,7 +47,9 @@ def test_pose_job_stores_people_once_and_drops_the_image(
         people = session.query(Observation).filter_by(frame_id=frame_id).order_by(Observation.person_index).all()
         assert frame.people == len(people) >= 10  # about 13-17 pedestrians in this frame
         usable = [p for p in people if p.usable]
-        assert len(usable) >= 6
+        # 5 measured with Thunder since only standing people with trusted ankles are evidence (8 before: one with
+        # an unseen knee, one cut by the frame's bottom edge and one repeated detection no longer count).
+        assert len(usable) >= 5
         for person in people:
             left, top, right, bottom = person.box_px
             assert 0 <= left < right <= 1920 and 0 <= top < bottom <= 1080
@@ -123,10 +125,10 @@ def test_town_centre_calibrates_from_its_own_pedestrians(
     """The real camera, end to end in the workers: 22 street frames, pose, evidence, a solve, the published truth.
 
     Oxford Town Centre's published calibration has fx = fy = 2696 px; its ground plane comes from the published
-    rotation and translation (tests/pose/towncentre.py). Measured here: fx 2735 px (+1.4 %, 1-sigma 68 px) and the
+    rotation and translation (bench/towncentre.py). Measured here: fx 2735 px (+1.4 %, 1-sigma 68 px) and the
     normal 1.8 degrees off, from 150 people; the issue's bounds (10 %, 3 degrees) are asserted.
     """
-    from tests.pose.towncentre import load_calibration
+    from bench.towncentre import load_calibration
 
     truth = load_calibration(TOWN_CENTRE / "TownCentre-calibration-ci.txt")
     for path in sorted((TOWN_CENTRE / "frames").glob("clip_*.jpg")):
