@@ -144,3 +144,49 @@ def test_town_centre_calibrates_from_its_own_pedestrians(
     normal = np.array([calibration.normal_x, calibration.normal_y, calibration.normal_z])
     assert np.degrees(np.arccos(np.clip(normal @ truth.ground_normal, -1, 1))) < 3.0
     assert statuses == {"done"}  # every frame measured with it
+
+
+def test_a_calibrated_cameras_frames_are_searched_the_calibrated_way(
+    sessions: sessionmaker[Session],
+    redis_dispatcher: RedisDispatcher,
+    connection: redis.Redis,
+    town_jpeg: bytes,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """The worker hands the camera's current calibration to the detector: bands at the scale of the people there.
+
+    Before the camera has a calibration the frame gets the fixed uncalibrated plan (and its second look); once the
+    published camera is its current calibration, the next frame's plan is exactly the one that calibration predicts.
+    """
+    from bench.towncentre import as_calibration, load_calibration
+    from service.calibration.repository import add_calibration
+    from service.domain import CalibrationValues
+    from service.pose.pipeline import load_pose_estimator
+
+    estimator = load_pose_estimator(get_settings())
+    first = store_image(sessions, town_jpeg)
+    redis_dispatcher.image_stored(CAMERA, first)
+    run_jobs(connection)
+    uncalibrated = estimator.plan((1920, 1080))
+    assert estimator.last_plan[: len(uncalibrated)] == uncalibrated  # then a second look around small people
+
+    truth = as_calibration(load_calibration(TOWN_CENTRE / "TownCentre-calibration-ci.txt"))
+    with sessions() as session, session.begin():
+        values = CalibrationValues.from_solution(truth, people_used=100, evidence_count=100)
+        add_calibration(session, CAMERA, values, make_current=True)
+    second = store_image(sessions, town_jpeg)
+    caplog.set_level("INFO")
+    redis_dispatcher.image_stored(CAMERA, second)
+    run_jobs(connection)
+    guided_plan = estimator.plan((1920, 1080), truth)
+    assert guided_plan[1:] and guided_plan[1:] != uncalibrated[1:]
+    # The stored calibration round-trips through the database: the same bands, scales equal to float rounding.
+    assert _rounded(estimator.last_plan) == _rounded(guided_plan)
+    assert any(getattr(record, "guided", None) is True for record in caplog.records)
+    with sessions() as session:
+        frame = session.get(Frame, second)
+        assert frame is not None and frame.status == "done" and frame.people >= 10  # measured with that camera
+
+
+def _rounded(plan: list) -> list[tuple[int, int, int, int, float]]:
+    return [(region.x0, region.y0, region.x1, region.y1, round(region.scale, 9)) for region in plan]
