@@ -126,6 +126,14 @@ class Settings(BaseSettings):
         description="Most observations one calibration solves on: a spatially balanced sample of the stored "
         "evidence, so a solve stays fast with millions of people stored and is not dominated by one crowded spot.",
     )
+    static_after_s: float = Field(
+        default=900.0,
+        gt=0,
+        le=30 * 86400,
+        description="Seconds (of frame time) a detected person may stay exactly where they are before the spot is "
+        "taken for a mannequin, poster or statue: people found there then give no calibration evidence and raise "
+        "no violation, and the camera lists the spot (`GET /v1/cameras/{id}/static-spots`).",
+    )
 
     migrations_dir: Path | None = Field(
         default=None,

@@ -16,13 +16,15 @@ from __future__ import annotations
 import logging
 import time
 import uuid
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 from service.calibration.repository import current_calibration
 from service.calibration.service import calibration_from_version
-from service.domain import DONE, FAILED, GONE, SKIPPED
+from service.cameras.static_spots import observe
+from service.domain import DONE, FAILED, GONE, SKIPPED, PersonIn
 from service.frames.images import ImageError, decode
-from service.frames.keypoints import people_from_detections
+from service.frames.keypoints import STATIC_REASON, people_from_detections
 from service.frames.repository import frame_image, record_detection_failure, record_detections
 from service.observability.logs import JOBS_LOGGER, log_context
 from service.observability.metrics import POSE_INFERENCE
@@ -67,6 +69,20 @@ def detect_people(settings: Settings, dispatcher: RedisDispatcher, frame_uuid: u
         return _detect(settings, dispatcher, frame_uuid, camera, data, guide)
 
 
+def _mark_static(
+    session: Session, frame_uuid: uuid.UUID, camera_id: str, people: list[PersonIn], static_after_s: float
+) -> list[PersonIn]:
+    """The frame's people, those standing at one of the camera's static spots marked so (cameras.static_spots)."""
+    frame = session.get(Frame, frame_uuid)
+    if frame is None or frame.status != "detecting":
+        return people  # a duplicate run: record_detections stores nothing, so no sighting is counted twice
+    static = observe(session, camera_id, frame.timestamp, [person.box_px for person in people], static_after_s)
+    return [
+        replace(person, unusable_reason=STATIC_REASON) if still else person
+        for person, still in zip(people, static, strict=True)
+    ]
+
+
 def _guide(session: Session, camera: Camera) -> Calibration | None:
     """The camera's current calibration, to guide the detector; None while it has none."""
     version = current_calibration(session, camera.id)
@@ -103,6 +119,7 @@ def _detect(
     size = (camera.image_width_px, camera.image_height_px)
     people = people_from_detections(found[: settings.max_people_per_frame], size)
     with transaction(settings) as session:
+        people = _mark_static(session, frame_uuid, camera.id, people, settings.static_after_s)
         stored = record_detections(session, frame_uuid, people, pose_model=estimator.name)
     if stored is None:
         return SKIPPED

@@ -68,6 +68,7 @@ DUPLICATE_POSE_FRACTION = 0.05
 MIN_SHARED_KEYPOINTS = 4
 SEATED_REASON = "seated or crouching (legs seen but folded): a position, not calibration evidence"
 PARTIAL_REASON = "lower body not seen (hidden or out of view): placed from the shoulders, not calibration evidence"
+STATIC_REASON = "static: found at a spot where nothing has moved for a long time (a mannequin, a poster, a statue)"
 
 Point = tuple[float, float]
 

@@ -17,7 +17,7 @@ import numpy as np
 import pydantic_core
 
 from service.domain import PersonIn, StoredCentres, ViolationIn, centres
-from service.frames.keypoints import PARTIAL_REASON, SEATED_REASON
+from service.frames.keypoints import PARTIAL_REASON, SEATED_REASON, STATIC_REASON
 from service.frames.schemas import FrameResult
 from service.geometry import Calibration, measure
 from service.geometry.priors import DEFAULT_HEIGHT_STD_M
@@ -89,7 +89,8 @@ def measure_people(
 
     Everyone who can be placed counts, evidence or not: a seated person, or one whose lower body is hidden, is
     placed from whatever the pose trusted (their ankles, else their shoulders at a seated or uncertain height, see
-    `_shoulder_priors`), with the wider sigma that implies, and takes part in violations.
+    `_shoulder_priors`), with the wider sigma that implies, and takes part in violations. Only a static "person"
+    (found where nothing has moved for a long time, cameras.static_spots) never does.
 
     A pair is a violation when its distance is strictly below `distance_threshold_m`; pairs involving a person
     who could not be placed (no shoulder and no ankle, or a ray missing the ground) have null distances and are
@@ -109,6 +110,7 @@ def measure_people(
     foot = -cal.rho * cal.normal  # the point on the ground straight below the camera
     right, forward = _ground_axes(cal.normal)
     placed = np.all(np.isfinite(positions), axis=1)
+    static = [(person.unusable_reason or "").startswith(STATIC_REASON) for person in people]
     ground = np.stack(((positions - foot) @ right, (positions - foot) @ forward), -1)
     placed_people = [
         {
@@ -116,9 +118,10 @@ def measure_people(
             "placed_from": ("ankles" if points[index][1] is not None else "shoulders") if is_placed else None,
             "ground_m": ground_m if is_placed else None,
             "point_m": point_m if is_placed else None,
+            "static": still,
         }
-        for index, (is_placed, ground_m, point_m) in enumerate(
-            zip(placed.tolist(), ground.tolist(), positions.tolist(), strict=True)
+        for index, (is_placed, ground_m, point_m, still) in enumerate(
+            zip(placed.tolist(), ground.tolist(), positions.tolist(), static, strict=True)
         )
     ]
     # Pairs i < j, from plain Python values: a frame of 20 people has 190 pairs.
@@ -131,7 +134,14 @@ def measure_people(
             first.tolist(), second.tolist(), pair_m.tolist(), pair_std_m.tolist(), known.tolist(), strict=True
         )
     ]
-    close = [pair for pair in pairs if pair["distance_m"] is not None and pair["distance_m"] < distance_threshold_m]
+    # A static "person" (a mannequin, cameras.static_spots) is measured like anyone but raises no violation.
+    close = [
+        pair
+        for pair in pairs
+        if pair["distance_m"] is not None
+        and pair["distance_m"] < distance_threshold_m
+        and not (static[pair["i"]] or static[pair["j"]])
+    ]
     violations = [
         ViolationIn(person_i=p["i"], person_j=p["j"], distance_m=p["distance_m"], distance_std_m=p["distance_std_m"])
         for p in close

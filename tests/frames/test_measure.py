@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from service.domain import PersonIn
-from service.frames.keypoints import PARTIAL_REASON, SEATED_REASON
+from service.frames.keypoints import PARTIAL_REASON, SEATED_REASON, STATIC_REASON
 from service.frames.measure import SEATED_HEIGHT_FRACTION, measure_people
 from service.frames.schemas import FrameResult
 from service.frames.service import compute_frame_result
@@ -107,3 +107,20 @@ def test_a_partly_seen_person_close_to_another_is_a_violation() -> None:
     result = measure_people([standing, partial], cal, distance_threshold_m=THRESHOLD_M).result
     assert result.pairs[0].distance_m == pytest.approx(0.8, abs=1e-6)
     assert [(v.i, v.j) for v in result.violations] == [(0, 1)]
+
+
+def test_a_static_person_is_measured_but_in_no_violation() -> None:
+    scene = tilted_scene(n_people=6)
+    cal = calibration_of(scene)
+    ground = scene.points_bottom[0]
+    beside = ground + 0.5 * np.cross(cal.normal, [0.0, 0.0, 1.0]) / np.linalg.norm(np.cross(cal.normal, [0, 0, 1]))
+    people = [
+        PersonIn(shoulder_px=_shoulders_at(cal, point, cal.height_m), ankle_px=_shoulders_at(cal, point, 0))
+        for point in (ground, beside)
+    ]
+    result = measure_people(people, cal, distance_threshold_m=THRESHOLD_M).result
+    assert [(v.i, v.j) for v in result.violations] == [(0, 1)]
+    people[1] = PersonIn(shoulder_px=people[1].shoulder_px, ankle_px=people[1].ankle_px, unusable_reason=STATIC_REASON)
+    result = measure_people(people, cal, distance_threshold_m=THRESHOLD_M).result
+    assert result.pairs[0].distance_m == pytest.approx(0.5, abs=1e-6)
+    assert result.violations == [] and [p.static for p in result.people] == [False, True]
