@@ -126,7 +126,7 @@ class Target:
 
 
 def _default_shared(*parts: str) -> Path:
-    return Path(__file__).resolve().parents[2].parent.joinpath("shared", *parts)
+    return Path(__file__).resolve().parents[1].parent.joinpath("shared", *parts)
 
 
 def default_model_dir() -> Path:
