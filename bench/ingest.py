@@ -29,9 +29,10 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
+import psutil
 
 from .frames import PAYLOADS, PEOPLE_PER_FRAME, simulated_frames
-from .server import Server, create_cameras, free_port, process_counts, request
+from .server import API, REDIS, WORKERS, Server, create_cameras, free_port, process_counts, request
 
 __all__ = ["PAYLOADS", "PEOPLE_PER_FRAME", "IngestResult", "ingest_lines", "run_ingest"]
 
@@ -55,6 +56,12 @@ class IngestResult:
     frames_done: int | None = None
     frames_pending: int | None = None
     calibrated_cameras: int | None = None
+    cpu_s: dict[str, float] = field(default_factory=dict)
+    """CPU seconds (user + system) each role of the server used during the run: what a frame costs, whatever
+    else runs on the machine (wall-clock figures on a shared machine are not)."""
+
+    def cpu_ms_per_frame(self, role: str) -> float:
+        return self.cpu_s.get(role, float("nan")) * 1000.0 / self.accepted if self.accepted else float("nan")
 
     @property
     def frames_per_s(self) -> float:
@@ -103,6 +110,19 @@ def _client(
         accepted.append(ok)
 
 
+def _cpu_s(server: Server) -> dict[str, float]:
+    """CPU seconds used so far by the server's live processes, by role."""
+    used: dict[str, float] = {}
+    for role, processes in server.processes().items():
+        for process in processes:
+            try:
+                times = process.cpu_times()
+            except psutil.Error:
+                continue
+            used[role] = used.get(role, 0.0) + times.user + times.system
+    return used
+
+
 def run_ingest(
     *,
     seconds: float,
@@ -141,6 +161,7 @@ def run_ingest(
                 latencies: list[float] = []
                 errors: list[str] = []
                 accepted: list[int] = []
+                cpu_before = _cpu_s(server)
                 started = time.perf_counter()
                 stop_at = started + duration
                 threads = [
@@ -164,7 +185,9 @@ def run_ingest(
                 for thread in threads:
                     thread.join()
                 elapsed = time.perf_counter() - started
+                cpu_after = _cpu_s(server)
                 result = IngestResult(elapsed, sum(accepted), len(errors), latencies, errors[:5])
+                result.cpu_s = {role: cpu_after[role] - cpu_before.get(role, 0.0) for role in cpu_after}
             assert result is not None
             result.calibrated_cameras = sum(
                 json.loads(request(server.port, "GET", f"/v1/cameras/bench-{c}/calibration", token=token)[1]).get(
@@ -216,6 +239,8 @@ def ingest_lines(
         f"  latency p99  {p99:8.1f} ms         (target <= {TARGET_P99_MS:.0f})",
         f"  max          {max(result.latencies_s, default=float('nan')) * 1000:8.1f} ms",
         f"  accepted     {result.accepted:8d}   errors {result.errors}",
+        f"  CPU/frame    {result.cpu_ms_per_frame(API):8.2f} ms API, {result.cpu_ms_per_frame(WORKERS):.2f} ms "
+        f"workers, {result.cpu_ms_per_frame(REDIS):.2f} ms Redis (user + system, every process of the role)",
         f"  -> {_verdict(ok)}",
     ]
     if result.frames_done is not None:

@@ -26,12 +26,13 @@ from service.frames.writer import FrameWriter
 from service.health import metrics
 from service.health import routes as health
 from service.http.json_body import register_body_schemas
-from service.http.problems import PROBLEM_MEDIA_TYPE, BodyGuard, HeaderGuard, install_handlers
+from service.http.problems import PROBLEM_MEDIA_TYPE, PROBLEM_SCHEMA, BodyGuard, HeaderGuard, install_handlers
 from service.http.query_params import known_query_only
 from service.keys import routes as keys
 from service.keys.authenticator import Authenticator
 from service.keys.dependencies import AUTH_RESPONSE_DESCRIPTIONS, require_key
 from service.keys.middleware import AuthenticateBeforeBody
+from service.observability import redact
 from service.observability.collectors import SharedStateCollector
 from service.observability.http import RequestTelemetry
 from service.observability.metrics import exposition_registry
@@ -57,19 +58,6 @@ Admin keys create keys with `POST /v1/keys`; a key may be limited to some camera
 documentation (`/docs`, `/redoc`, `/openapi.json`) is public: it describes the API and holds no data.
 """
 
-PROBLEM_SCHEMA = {
-    "type": "object",
-    "properties": {
-        "type": {"type": "string", "format": "uri"},
-        "title": {"type": "string"},
-        "status": {"type": "integer"},
-        "detail": {"type": "string"},
-        "instance": {"type": "string"},
-        "request_id": {"type": "string", "description": "The request's id, as in the X-Request-ID header."},
-        "errors": {"type": "array", "items": {"type": "object"}},
-    },
-    "required": ["type", "title", "status", "detail"],
-}
 PROBLEM_RESPONSES: dict[int | str, dict[str, object]] = {
     "4XX": {"description": "Problem details (RFC 9457)", "content": {PROBLEM_MEDIA_TYPE: {"schema": PROBLEM_SCHEMA}}},
     "5XX": {"description": "Problem details (RFC 9457)", "content": {PROBLEM_MEDIA_TYPE: {"schema": PROBLEM_SCHEMA}}},
@@ -139,6 +127,7 @@ def create_app(
     shared_state = SharedStateCollector(app.state.read_session_factory, queue_depths)
     app.state.metrics_registry = exposition_registry([shared_state])
     install_handlers(app)
+    redact.APP_SECRETS.add(settings.logged_secrets())
     app.add_middleware(
         BodyGuard,
         max_body_bytes=settings.max_body_bytes,

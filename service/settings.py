@@ -11,6 +11,7 @@ from functools import lru_cache
 from ipaddress import IPv4Network, IPv6Network
 from pathlib import Path
 from typing import Annotated, Literal
+from urllib.parse import quote, urlsplit
 
 from pydantic import Field, SecretStr, field_validator, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
@@ -71,9 +72,9 @@ class Settings(BaseSettings):
         ge=0.0,
         le=60.0,
         description="How long each API process reuses a camera's image size, read for accepting a keypoint frame, "
-        "before reading it again in the background (a third of the API's CPU per frame otherwise). A camera changed "
-        "or deleted through another API process is seen within about this time, twice it at worst (at once by the "
-        "process that changed it); 0 reads every request.",
+        "before reading it again in the background (a third of the API's CPU per frame otherwise). No frame depends "
+        "on it: the store checks the size again when it commits a frame, and a frame checked against a size changed "
+        "meanwhile (by any API process) is checked again against the new one; 0 reads every request.",
     )
     max_people_per_frame: int = Field(
         default=200,
@@ -196,6 +197,15 @@ class Settings(BaseSettings):
         description="Time a webhook receiver has to connect, read the request and answer, in seconds; a slower "
         "answer counts as a failed attempt and is retried.",
     )
+    webhook_lease_margin_s: float = Field(
+        default=60.0,
+        ge=1,
+        le=3600,
+        description="How long past `webhook_timeout_s` (x 3: connect, send, answer) a webhook attempt keeps its "
+        "delivery to itself. A worker killed in the middle of an attempt frees the delivery for the next attempt "
+        "that long after the attempt would have timed out; the attempt may have reached the receiver, which then "
+        "gets the event twice, with the same `webhook-id`.",
+    )
     webhook_allowed_networks: Annotated[tuple[IPv4Network | IPv6Network, ...], NoDecode] = Field(
         default=(),
         description="Address ranges webhooks may be sent to although the SSRF policy refuses them (loopback, "
@@ -269,6 +279,16 @@ class Settings(BaseSettings):
     def _absolute_data_dir(cls, value: Path) -> Path:
         """Pin a relative directory to the start-up working directory so later chdirs cannot move the data."""
         return value.expanduser().resolve()
+
+    def logged_secrets(self) -> list[str]:
+        """What no log line may show (service.observability.logs masks it): the admin key, and the passwords of the
+        database and Redis URLs."""
+        secrets = [] if self.admin_key is None else [self.admin_key.get_secret_value()]
+        for url in (self.database_url, self.redis_url):
+            password = urlsplit(url).password if url else None
+            if password:
+                secrets += [password, quote(password, safe="")]
+        return secrets
 
     @field_validator("admin_key")
     @classmethod

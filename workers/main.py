@@ -182,7 +182,11 @@ class _Recovers:
         super().__init__(*args, **kwargs)
         self.settings = settings or get_settings()
         dispatcher = RedisDispatcher(self.connection)
-        self.recovery = RecoverySchedule(self.connection, lambda: recover(self.settings, dispatcher, periodic=True))
+        self.recovery = RecoverySchedule(
+            self.connection,
+            lambda: recover(self.settings, dispatcher, periodic=True),
+            lambda: recover(self.settings, dispatcher, periodic=False),
+        )
 
     def run_maintenance_tasks(self) -> None:
         try:
@@ -333,7 +337,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         environment = {**os.environ, METRICS_DIR_ENV: private, PRIVATE_METRICS_DIR_ENV: private}
         arguments = sys.argv[1:] if argv is None else list(argv)
         os.execve(sys.executable, [sys.executable, "-m", "workers.main", *arguments], environment)
-    configure_logging(args.log_format or settings.log_format, settings.log_level)
+    configure_logging(args.log_format or settings.log_format, settings.log_level, secrets=settings.logged_secrets())
     private = os.environ.get(PRIVATE_METRICS_DIR_ENV)
     private_dir = Path(private) if private and private == os.environ.get(METRICS_DIR_ENV) else None
     try:

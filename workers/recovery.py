@@ -27,6 +27,10 @@ RECOVERY_INTERVAL_S = 30
 DUE_KEY = "posemetry:recovery:due"
 SCHEDULE_KEY = "posemetry:recovery:scheduled"
 LOCK_KEY = "posemetry:recovery:lock"
+# Set by every full pass, without expiry: a Redis found without it lost its data since (restarted empty, or from an
+# old snapshot), and with it every job it held, the scheduled webhook retries included. The next pass is then a
+# full one, as at a worker's start: it queues every pending delivery, not only those overdue by a minute.
+KEPT_KEY = "posemetry:recovery:kept"
 # A pass that runs longer than this (a worker killed in the middle of one) no longer keeps the others out.
 LOCK_TTL_S = 300
 DUE_TTL_S = 24 * 3600
@@ -47,16 +51,21 @@ def request_recovery(connection: redis.Redis) -> None:
 
 
 def postpone_recovery(connection: redis.Redis) -> None:
-    """A pass just ran (a worker's start): the next periodic one is due RECOVERY_INTERVAL_S from now."""
+    """A full pass just ran (a worker's start): the next periodic one is due RECOVERY_INTERVAL_S from now."""
     connection.set(SCHEDULE_KEY, "1", ex=RECOVERY_INTERVAL_S)
+    connection.set(KEPT_KEY, "1")
 
 
 class RecoverySchedule:
-    """Runs `recover` when a pass is due (see the module docstring); called from each worker's maintenance."""
+    """Runs `recover` when a pass is due (see the module docstring), or `recover_all` when Redis lost its data since
+    the last full pass (KEPT_KEY); called from each worker's maintenance."""
 
-    def __init__(self, connection: redis.Redis, recover: Callable[[], object]) -> None:
+    def __init__(
+        self, connection: redis.Redis, recover: Callable[[], object], recover_all: Callable[[], object] | None = None
+    ) -> None:
         self.connection = connection
         self.recover = recover
+        self.recover_all = recover_all or recover
         self._release = connection.register_script(_RELEASE)
 
     def due(self) -> bool:
@@ -74,7 +83,11 @@ class RecoverySchedule:
         try:
             # Cleared first: a job that meets an outage while the pass runs asks for the next one.
             self.connection.delete(DUE_KEY)
-            self.recover()
+            if self.connection.exists(KEPT_KEY):
+                self.recover()
+            else:
+                self.recover_all()
+                self.connection.set(KEPT_KEY, "1")
             return True
         except Exception:
             log.exception("recovery pass failed; the next maintenance tries again")

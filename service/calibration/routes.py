@@ -91,7 +91,8 @@ def get_calibration_history(
     camera_id: CameraIdPath,
     session: ReadSessionDep,
     limit: Annotated[int, Query(ge=1, le=1000, description="Versions per page.")] = 100,
-    before: Annotated[int | None, Query(ge=1, description="Last version of the previous page.")] = None,
+    # Versions are 32-bit integers; an unbounded one overflowed SQLite's INTEGER (a 500) before this bound.
+    before: Annotated[int | None, Query(ge=1, le=2**31, description="Last version of the previous page.")] = None,
 ) -> CalibrationHistory:
     """Every solve, newest first, failed ones included (with their reason)."""
     require_camera(session, camera_id)

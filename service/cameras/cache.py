@@ -9,10 +9,12 @@ again: no request waits for the database because a camera's time ran out. (Readi
 through the thread pool, cost 25 requests a second at 50 cameras and a 2 s ttl; queued behind the GIL, they were
 the 99th percentile of ingest latency.) An entry past twice `ttl_s` (its refresh failed) is read by the request.
 
-What another process changed is therefore seen within about `ttl_s`, twice that at worst: a camera deleted there
-meanwhile still fails the frame's insert (its foreign key) and is answered 404; a new image size set there
-applies to this process's frames soon after. A camera that does not exist is never remembered, so one created
-elsewhere is found at once.
+What another process changed is seen here within about `ttl_s`, twice that at worst, but no frame depends on it:
+the store reads the camera's image size again in the transaction that stores the frame (a row that transaction
+locks and updates anyway), and refuses a frame checked against another size; the API then forgets the entry,
+reads the camera and checks the frame against the new size. So a resize binds every process's next frame, and
+a deleted camera is a 404 at once. A camera that does not exist is never remembered, so one created elsewhere is
+found at once.
 """
 
 from __future__ import annotations

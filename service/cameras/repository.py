@@ -23,6 +23,16 @@ class CameraNotFoundError(LookupError):
     """The camera id is not configured (the API answers 404)."""
 
 
+class CameraResizedError(Exception):
+    """The camera's image size is no longer the one its frame was checked against (a PUT changed it since): the
+    frame is not stored, so no person checked against the old size joins the new size's evidence."""
+
+    def __init__(self, camera_id: str, size_px: tuple[int, int]) -> None:
+        super().__init__(f"camera {camera_id!r} is now {size_px[0]}x{size_px[1]} px")
+        self.camera_id = camera_id
+        self.size_px = size_px
+
+
 def existing_camera(session: Session, camera_id: str, *, for_update: bool = False) -> Camera:
     """The camera's row, read afresh (locked with `for_update`); CameraNotFoundError when there is none."""
     stmt = select(Camera).where(Camera.id == camera_id).execution_options(populate_existing=True)

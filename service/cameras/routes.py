@@ -60,9 +60,10 @@ def put_camera(
 ) -> CameraOut:
     """Create or update a camera (idempotent): 201 when created, 200 when it existed.
 
-    A changed image size makes stored evidence meaningless (other pixels), so the calibration is reset and the
-    evidence dropped. A changed height prior, focal assumption or known focal length keeps the evidence and
-    asks for a forced re-solve; the current calibration stays in use until it is replaced.
+    A changed image size makes stored evidence meaningless (other pixels), so the calibration is reset, the
+    evidence dropped, and frames still waiting for pose or measuring fail with the reason. A changed height prior,
+    focal assumption or known focal length keeps the evidence and asks for a forced re-solve; the current
+    calibration stays in use until it is replaced.
     """
     applied = apply_settings(session, camera_id, body)
     session.commit()

@@ -10,7 +10,7 @@ from sqlalchemy.orm import Session
 from service.calibration.repository import current_calibration, reset_calibration
 from service.cameras import repository
 from service.cameras.schemas import CameraSettings
-from service.frames.repository import delete_kept_images
+from service.frames.repository import delete_kept_images, fail_unfinished_frames
 from service.http.links import camera_url
 from service.http.problems import ProblemError
 from service.store.models import Camera
@@ -45,10 +45,11 @@ class SettingsApplied:
 def apply_settings(session: Session, camera_id: str, body: CameraSettings) -> SettingsApplied:
     """Create or update a camera in the caller's transaction.
 
-    A changed image size makes stored evidence meaningless (other pixels), so the calibration is reset and the
-    evidence dropped. A changed height prior, focal assumption or known focal length keeps the evidence and
-    asks for a forced re-solve; the current calibration stays in use until it is replaced. A camera that stops
-    keeping images forgets the ones it kept (privacy).
+    A changed image size makes stored evidence meaningless (other pixels), so the calibration is reset, the
+    evidence dropped, and frames still waiting for pose or measuring fail with the reason. A changed height prior,
+    focal assumption or known focal length keeps the evidence and asks for a forced re-solve; the current
+    calibration stays in use until it is replaced. A camera that stops keeping images forgets the ones it kept
+    (privacy).
     """
     before = repository.get_camera(session, camera_id)
     old = None
@@ -80,6 +81,12 @@ def apply_settings(session: Session, camera_id: str, body: CameraSettings) -> Se
         if old[:2] != (body.image_width_px, body.image_height_px):
             was_calibrated = current_calibration(session, camera_id) is not None
             reset_calibration(session, camera_id, drop_evidence=True)
+            fail_unfinished_frames(
+                session,
+                camera_id,
+                f"camera {camera_id!r} was resized to {body.image_width_px}x{body.image_height_px} px before this "
+                "frame was measured",
+            )
             if was_calibrated:
                 deliveries = status_changed_deliveries(session, camera_id, None, "calibrated", "image size changed")
         elif old[2:] != (body.person_height_m, body.equal_focal, body.known_focal_px):

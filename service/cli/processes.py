@@ -51,7 +51,7 @@ def create_api() -> FastAPI:
     from service.settings import get_settings
 
     settings = get_settings()
-    configure_logging(settings.log_format, settings.log_level)
+    configure_logging(settings.log_format, settings.log_level, secrets=settings.logged_secrets())
     dispatcher = RedisDispatcher.from_settings(settings)
     app = create_app(settings, dispatcher=dispatcher, queue_depths=QueueDepths(dispatcher.connection, QUEUES))
     quiet_garbage_collector(API_GC_THRESHOLDS)
@@ -80,7 +80,7 @@ def _log_options(log_format: str | None, log_level: str | None) -> None:
         os.environ["POSEMETRY_LOG_LEVEL"] = log_level
     get_settings.cache_clear()
     settings = get_settings()
-    configure_logging(settings.log_format, settings.log_level)
+    configure_logging(settings.log_format, settings.log_level, secrets=settings.logged_secrets())
 
 
 def _metrics_directory(path: Path) -> None:

@@ -24,8 +24,9 @@ from service.calibration.service import calibration_from_version
 from service.cameras.static_spots import observe
 from service.domain import DONE, FAILED, GONE, SKIPPED, PersonIn
 from service.frames.images import ImageError, decode
+from service.frames.ingest import record_detection_failure, record_detections
 from service.frames.keypoints import STATIC_REASON, people_from_detections
-from service.frames.repository import frame_image, record_detection_failure, record_detections
+from service.frames.repository import frame_image
 from service.observability.logs import JOBS_LOGGER, log_context
 from service.observability.metrics import POSE_INFERENCE
 from service.observability.request_id import request_id_context

@@ -12,35 +12,57 @@ from fastapi import APIRouter, Depends, Path, Query, Request, Response, status
 from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import State
 
-from service.cameras.repository import CameraNotFoundError
+from service.cameras.repository import CameraNotFoundError, CameraResizedError
 from service.cameras.service import camera_not_found, require_camera
 from service.dispatch import UNAVAILABLE_ERRORS, Dispatcher
-from service.frames import repository
+from service.frames import ingest, repository
+from service.frames.digests import image_frame_digest
 from service.frames.images import ImageError, ImageTooLargeError, decode
 from service.frames.schemas import DetectedPersonOut, FrameAccepted, FrameOut, KeypointFrame
 from service.frames.service import people_for_camera
 from service.frames.uploads import OPENAPI_REQUEST_BODY, UPLOAD_TYPES, Upload, read_upload
-from service.frames.writer import FrameWriter
+from service.frames.writer import FrameNotStorableError, FrameWriter
 from service.http.dependencies import CameraIdPath, DispatcherDep, ReadSessionDep, SettingsDep, queue_unavailable
 from service.http.json_body import json_body, openapi_body
 from service.http.links import frame_url
-from service.http.problems import ProblemError, UploadRoute
+from service.http.problems import ProblemError, UploadRoute, problem_response_doc
 from service.http.schemas import CLIENT_FRAME_ID_PATTERN, TimestampText
 from service.observability.metrics import FRAMES_INGESTED
 from service.observability.request_id import current_request_id
 from service.settings import Settings
-from service.store.models import Frame, Observation
+from service.store.models import Camera, Frame, Observation
 
 router = APIRouter(prefix="/v1/cameras", tags=["frames"])
 # Bodies read by json_body rather than declared in a signature; the app adds their schemas to its OpenAPI.
 JSON_BODIES = (KeypointFrame,)
 
 
+# How often a keypoint frame is checked again when its camera is resized while it is being stored.
+RESIZE_RECHECKS = 2
+CONFLICT_RESPONSE = {409: problem_response_doc("The frame_id is stored with other content (the body names that frame)")}
+
+
+def frame_id_conflict(frame: Frame) -> ProblemError:
+    """409 for a client frame id reused with other content: a retry must repeat the frame, and a new frame needs a
+    new id; silently answering with the stored frame would drop the new content."""
+    url = frame_url(frame.camera_id, frame.id)
+    return ProblemError(
+        409,
+        "frame-id-conflict",
+        f"Camera {frame.camera_id!r} already has a frame with frame_id {frame.client_frame_id!r} and other content "
+        f"({url}). A retry must send the same timestamp and people (or image); give a new frame a new frame_id.",
+        headers={"Location": url},
+        frame_id=frame.id,
+        client_frame_id=frame.client_frame_id,
+        url=url,
+    )
+
+
 @router.post(
     "/{camera_id}/keypoints",
     status_code=status.HTTP_202_ACCEPTED,
     response_model=FrameAccepted,
-    responses={200: {"description": "A retry of a frame already stored (same client frame_id)"}},
+    responses={200: {"description": "A retry of a frame already stored (same client frame_id)"}, **CONFLICT_RESPONSE},
     openapi_extra=openapi_body(KeypointFrame),
 )
 async def post_keypoints(
@@ -54,28 +76,49 @@ async def post_keypoints(
     The measuring worker that picks the frame up also requests a calibration when the camera's evidence calls
     for one, so this hot path makes one call to the queue (per camera and write batch).
 
-    Posting the same client `frame_id` again returns the stored frame and stores nothing; if that frame is
-    still pending it is dispatched again, which is how a client recovers from an earlier 503. When the queue
-    is unreachable the answer is 503, but the frame is already committed and workers pick it up on start.
+    Posting the same client `frame_id` again with the same content (README: Idempotency) returns the stored
+    frame and stores nothing; if that frame is still pending it is dispatched again, which is how a client
+    recovers from an earlier 503. The same `frame_id` with other content is 409. When the queue is unreachable
+    the answer is 503, but the frame is already committed and workers pick it up on start.
+
+    The camera comes from this process's memory; the store checks its image size again when it commits, and a
+    frame whose camera was resized meanwhile is checked again against the new size (or refused), so a resize
+    holds at once on every API process.
     """
     # Everything but the database and the queue runs on the event loop (the body was parsed there too); those two
     # are the frame writer's thread's, so a request crosses threads only there and back.
     state: State = request.app.state
     camera = state.camera_cache.cached(camera_id)
-    if camera is None:
-        camera = await run_in_threadpool(state.camera_cache.get, camera_id)
-        if camera is None:
-            raise camera_not_found(camera_id)
-    people = people_for_camera(body.people, camera, state.settings)
-    new = repository.NewKeypointFrame(
-        camera, body.timestamp, people, client_frame_id=body.frame_id, request_id=current_request_id()
-    )
     writer: FrameWriter = state.frame_writer
-    try:
-        stored = await asyncio.wrap_future(writer.submit(new))
-    except CameraNotFoundError:
-        raise camera_not_found(camera_id) from None  # deleted since it was read
+    for _ in range(1 + RESIZE_RECHECKS):
+        if camera is None:
+            camera = await run_in_threadpool(state.camera_cache.get, camera_id)
+            if camera is None:
+                raise camera_not_found(camera_id)
+        people = people_for_camera(body.people, camera, state.settings)
+        new = ingest.NewKeypointFrame(
+            camera, body.timestamp, people, client_frame_id=body.frame_id, request_id=current_request_id()
+        )
+        try:
+            stored = await asyncio.wrap_future(writer.submit(new))
+            break
+        except CameraNotFoundError:
+            state.camera_cache.forget(camera_id)
+            raise camera_not_found(camera_id) from None  # deleted since it was read
+        except CameraResizedError:
+            state.camera_cache.forget(camera_id)  # read again, and the people checked against the new size
+            camera = None
+        except FrameNotStorableError as exc:
+            raise ProblemError(422, "frame-not-storable", f"{str(exc)[0].upper()}{str(exc)[1:]}.") from exc
+    else:
+        raise ProblemError(
+            409,
+            "camera-changed",
+            f"Camera {camera_id!r} was resized again and again while this frame was being stored; post it again.",
+        )
     frame = stored.frame
+    if not stored.created and frame.content_sha256 not in (None, new.content_sha256):
+        raise frame_id_conflict(frame)
     if stored.created:
         FRAMES_INGESTED.labels(source="keypoints").inc()
     url = frame_url(camera_id, frame.id)
@@ -128,7 +171,7 @@ def upload_route(settings: Settings) -> UploadRoute:
     status_code=status.HTTP_202_ACCEPTED,
     response_model=FrameAccepted,
     openapi_extra={"requestBody": OPENAPI_REQUEST_BODY},
-    responses={200: {"description": "A retry of a frame already stored (same client frame_id)"}},
+    responses={200: {"description": "A retry of a frame already stored (same client frame_id)"}, **CONFLICT_RESPONSE},
 )
 async def post_image(
     camera_id: CameraIdPath,
@@ -172,15 +215,11 @@ def _store_image(
     except ImageError as exc:
         raise ProblemError(422, "invalid-image", f"Invalid image: {exc}.") from exc
     if (header.width_px, header.height_px) != (camera.image_width_px, camera.image_height_px):
-        raise ProblemError(
-            422,
-            "image-size-mismatch",
-            f"The image is {header.width_px}x{header.height_px} px, but camera {camera_id!r} is configured for "
-            f"{camera.image_width_px}x{camera.image_height_px} px (a calibration holds for one image size).",
-        )
+        raise _size_mismatch(camera_id, (header.width_px, header.height_px), camera_size(camera))
+    digest = image_frame_digest(upload.data)
     with request.app.state.session_factory() as session:
         try:
-            frame, created = repository.add_image_frame(
+            frame, created = ingest.add_image_frame(
                 session,
                 camera,
                 timestamp=upload.timestamp,
@@ -190,10 +229,17 @@ def _store_image(
                 data=upload.data,
                 client_frame_id=upload.frame_id,
                 request_id=current_request_id(),
+                content_sha256=digest,
             )
         except CameraNotFoundError:
             raise camera_not_found(camera_id) from None
+        except CameraResizedError as exc:  # resized since it was read: the image is of the old size
+            raise _size_mismatch(camera_id, (header.width_px, header.height_px), exc.size_px) from None
         session.commit()
+    if not created and (
+        frame.content_sha256 not in (None, digest) or (upload.timestamp_given and upload.timestamp != frame.timestamp)
+    ):
+        raise frame_id_conflict(frame)
     if created:
         FRAMES_INGESTED.labels(source="image").inc()
     url = frame_url(camera_id, frame.id)
@@ -205,6 +251,19 @@ def _store_image(
                 "the image is stored and will be processed when the queue is back.", exc, frame_id=frame.id, url=url
             ) from exc
     return _accepted(frame, created, url, response)
+
+
+def camera_size(camera: Camera) -> tuple[int, int]:
+    return camera.image_width_px, camera.image_height_px
+
+
+def _size_mismatch(camera_id: str, image_px: tuple[int, int], camera_px: tuple[int, int]) -> ProblemError:
+    return ProblemError(
+        422,
+        "image-size-mismatch",
+        f"The image is {image_px[0]}x{image_px[1]} px, but camera {camera_id!r} is configured for "
+        f"{camera_px[0]}x{camera_px[1]} px (a calibration holds for one image size).",
+    )
 
 
 def _accepted(frame: Frame, created: bool, url: str, response: Response) -> FrameAccepted:

@@ -4,13 +4,24 @@ from __future__ import annotations
 
 import uuid
 from datetime import datetime
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from service.http.schemas import CLIENT_FRAME_ID_PATTERN, Keypoint, PointPx, StrictModel, Timestamp
+from service.cameras.schemas import MAX_IMAGE_SIDE_PX
+from service.http.schemas import CLIENT_FRAME_ID_PATTERN, Score, StrictModel, Timestamp
 
 COCO_KEYPOINTS = 17
+# Every pixel coordinate, whatever its score: finite and within ten times the largest image side of the origin. The
+# frames service then holds it to the camera's image (service.frames.service.people_for_camera); this bound alone
+# keeps every number storable (keypoints are packed as float32, whose range ends at 3.4e38: 1e39 with a score of 0
+# once failed a whole write batch) and is in the published schema, so a client learns it from the contract.
+COORDINATE_LIMIT_PX = 10 * MAX_IMAGE_SIDE_PX
+CoordinatePx = Annotated[
+    float, Field(ge=-COORDINATE_LIMIT_PX, le=COORDINATE_LIMIT_PX, allow_inf_nan=False, strict=True)
+]
+PointPx = tuple[CoordinatePx, CoordinatePx]
+Keypoint = tuple[CoordinatePx, CoordinatePx, Score]
 
 
 # The two forms of a person in the JSON schema, so that what the schema calls valid is what the validators accept:

@@ -8,12 +8,16 @@ from __future__ import annotations
 
 import logging
 import time
+import uuid
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any
+
+from sqlalchemy.exc import SQLAlchemyError
 
 from service.calibration.repository import current_calibration
 from service.calibration.service import calibration_due, calibration_from_version
-from service.domain import DONE, GONE, PENDING, FrameOutcome, PersonIn, StoredCentres
+from service.domain import DONE, FAILED, GONE, PENDING, FrameOutcome, PersonIn, StoredCentres
 from service.frames.keypoints import person_from_centres, person_from_keypoints
 from service.frames.measure import FrameComputation, measure_people
 from service.frames.repository import frames_points, pending_frames, record_frame_outcomes
@@ -21,7 +25,7 @@ from service.frames.schemas import PersonObservation
 from service.http.problems import ProblemError, field_errors
 from service.observability.logs import JOBS_LOGGER
 from service.settings import Settings
-from service.store.db import EncodedJSON
+from service.store.db import EncodedJSON, is_database_unavailable
 from service.store.models import CalibrationVersion, Camera, Frame, clip_reason
 from service.store.sessions import read_session_factory, transaction
 from service.webhooks.events import announce, violation_deliveries
@@ -46,8 +50,9 @@ def people_for_camera(people: Sequence[PersonObservation], camera: Camera, setti
     """Posted people as store rows, after the checks that need the camera and the settings.
 
     Too many people is 413 (settings.max_people_per_frame). Coordinates more than half an image beyond an edge
-    are 422 with each bad field's location; keypoints with score 0 are exempt, since pose models put
-    placeholder coordinates on joints they did not find.
+    are 422 with each bad field's location, whatever their score: pose models put the joints they did not find
+    at placeholders inside or next to the image (0, 0 or -1, -1), never half an image away, and a number that
+    passes here must be one the store can keep (a score-0 keypoint at 1e39 once failed a whole write batch).
     """
     if len(people) > settings.max_people_per_frame:
         raise ProblemError(
@@ -75,8 +80,8 @@ def people_for_camera(people: Sequence[PersonObservation], camera: Camera, setti
     rows = []
     for index, person in enumerate(people):
         if person.keypoints is not None:
-            for k, (x, y, score) in enumerate(person.keypoints):
-                if score > 0 and not (low_x <= x <= high_x and low_y <= y <= high_y):
+            for k, (x, y, _score) in enumerate(person.keypoints):
+                if not (low_x <= x <= high_x and low_y <= y <= high_y):
                     far_outside([index, "keypoints", k], x, y)
             rows.append(person_from_keypoints(person.keypoints, size))
         else:
@@ -163,10 +168,8 @@ def measure_pending(settings: Settings, dispatcher: RedisDispatcher, camera_id: 
             people = frames_points(session, [frame.id for frame in frames])
         outcomes = [frame_outcome(frame, people.get(frame.id, []), camera, calibration) for frame in frames]
         if outcomes:
-            with transaction(settings) as session:
-                record_frame_outcomes(session, outcomes)
-                client_ids = {frame.id: frame.client_frame_id for frame in frames}
-                deliveries = violation_deliveries(session, camera, outcomes, settings, client_frame_ids=client_ids)
+            client_ids = {frame.id: frame.client_frame_id for frame in frames}
+            outcomes, deliveries = store_outcomes(settings, camera, outcomes, client_ids)
             announce(dispatcher, deliveries)
         for frame, measured in zip(frames, outcomes, strict=True):
             _log_measured(frame, measured)
@@ -180,6 +183,42 @@ def measure_pending(settings: Settings, dispatcher: RedisDispatcher, camera_id: 
     ):
         dispatcher.calibration_requested(camera_id, False)
     return outcome
+
+
+def store_outcomes(
+    settings: Settings, camera: Camera, outcomes: list[FrameOutcome], client_ids: dict[uuid.UUID, str | None]
+) -> tuple[list[FrameOutcome], list[uuid.UUID]]:
+    """Store a chunk's results with their violation events and webhook deliveries; (outcomes as stored, deliveries).
+
+    One transaction for the chunk. If it fails for any reason but an unavailable database, each frame is stored in
+    a transaction of its own, and a frame that fails alone is stored `failed` with the reason: one frame the store
+    cannot take must not hold back its neighbours (a chunk that always failed would fail every retry of the job,
+    and the camera's frames behind it would wait for ever).
+    """
+    try:
+        with transaction(settings) as session:
+            record_frame_outcomes(session, outcomes)
+            return outcomes, violation_deliveries(session, camera, outcomes, settings, client_frame_ids=client_ids)
+    except Exception as exc:
+        if isinstance(exc, SQLAlchemyError) and is_database_unavailable(exc):
+            raise
+        log.warning("a chunk of %d results failed (%r); storing them one at a time", len(outcomes), exc)
+    stored, deliveries = [], []
+    for outcome in outcomes:
+        try:
+            with transaction(settings) as session:
+                record_frame_outcomes(session, [outcome])
+                deliveries += violation_deliveries(session, camera, [outcome], settings, client_frame_ids=client_ids)
+        except Exception as exc:
+            if isinstance(exc, SQLAlchemyError) and is_database_unavailable(exc):
+                raise
+            log.error("the result of frame %s could not be stored: %r", outcome.frame_id, exc, exc_info=exc)
+            reason = clip_reason(f"its result could not be stored ({type(exc).__name__}: {exc})")
+            outcome = replace(outcome, status=FAILED, result=None, violations=(), error=reason)
+            with transaction(settings) as session:
+                record_frame_outcomes(session, [outcome])
+        stored.append(outcome)
+    return stored, deliveries
 
 
 def _log_measured(frame: Frame, outcome: FrameOutcome) -> None:

@@ -60,6 +60,9 @@ class Upload:
     """Sniffed from the bytes (and equal to the declared type)."""
     timestamp: datetime
     frame_id: str | None
+    timestamp_given: bool = True
+    """False when the client sent no timestamp and `timestamp` is the time of receipt (not part of the content a
+    retry must repeat)."""
 
 
 def _bad(detail: str, status: int = 422, kind: str = "invalid-image") -> ProblemError:
@@ -104,7 +107,8 @@ async def read_upload(request: Request, *, timestamp: datetime | None, frame_id:
     declared = request.headers.get("content-type", "").split(";", 1)[0].strip().lower()
     if declared != MULTIPART:
         data = await request.body()
-        return Upload(data, _checked_type(data, declared), _timestamp(timestamp), _frame_id(frame_id))
+        given = timestamp is not None
+        return Upload(data, _checked_type(data, declared), _timestamp(timestamp), _frame_id(frame_id), given)
     try:
         form = await request.form(max_files=1, max_fields=MAX_FORM_FIELDS)
     except Exception as exc:  # the multipart parser raises several types for malformed forms
@@ -126,9 +130,11 @@ async def read_upload(request: Request, *, timestamp: datetime | None, frame_id:
     finally:
         await form.close()
     part_type = (part.content_type or "").split(";", 1)[0].strip().lower()
+    chosen_timestamp = form_timestamp if isinstance(form_timestamp, str) and form_timestamp else timestamp
     return Upload(
         data,
         _checked_type(data, part_type),
-        _timestamp(form_timestamp if isinstance(form_timestamp, str) and form_timestamp else timestamp),
+        _timestamp(chosen_timestamp),
         _frame_id(form_frame_id if isinstance(form_frame_id, str) and form_frame_id else frame_id),
+        chosen_timestamp is not None,
     )

@@ -3,7 +3,7 @@
 Under load most of the cost of storing a frame is the transaction around it (BEGIN, three statements through
 SQLAlchemy, COMMIT), not its rows. Requests therefore hand their frame to the `FrameWriter` (`submit`, which
 returns a future the event loop awaits) and the writer thread stores every frame waiting at that moment in one
-transaction (`repository.add_keypoint_frames`), then answers each future. Nobody waits for a timer: an idle writer
+transaction (`ingest.add_keypoint_frames`), then answers each future. Nobody waits for a timer: an idle writer
 stores a frame alone, at once, and batches form only from frames that would have queued for the database's write
 lock anyway. The same holds on PostgreSQL, where a batch is also one round trip per table.
 
@@ -12,10 +12,13 @@ wake-up and a wait for the GIL: a request crosses threads to the writer and back
 well. `after_commit` runs once per batch on a second thread (the API asks for the batch's cameras to be measured
 there), so the writer stores the next batch meanwhile; it may give each frame an error of its own.
 
-Each frame still gets its own answer. When a batch fails as a whole because of one frame (its camera deleted
-meanwhile, or its client frame id stored by another process since the check), the writer stores that batch's
-frames one at a time with `add_keypoint_frame`, which answers each of them as a single post would. Any other
-failure (the database unreachable) is every waiting frame's failure: none of them was stored.
+Each frame gets its own answer, and one client's frame never costs another client anything. Frames whose camera
+was deleted or resized since it was read are named by the store before it writes (FramesRefusedError): they get
+their own error and the batch is stored without them. When a batch fails as a whole for any other reason but the
+database being unavailable (a client frame id stored by another process since the check, or a frame the store
+cannot take), the writer stores that batch's frames one at a time with `add_keypoint_frame`, which answers each of
+them as a single post would; a frame that fails alone gets FrameNotStorableError (the API answers 422), never a
+500 for its neighbours. A database that is unavailable is every waiting frame's failure (503): none was stored.
 """
 
 from __future__ import annotations
@@ -26,11 +29,14 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import cast
 
-from sqlalchemy.exc import IntegrityError
+from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 
-from service.frames.repository import NewKeypointFrame, add_keypoint_frame, add_keypoint_frames
+from service.cameras.repository import CameraNotFoundError, CameraResizedError
+from service.frames.ingest import FramesRefusedError, NewKeypointFrame, add_keypoint_frame, add_keypoint_frames
+from service.store.db import is_database_unavailable
 from service.store.models import Frame
 
 log = logging.getLogger(__name__)
@@ -38,6 +44,19 @@ log = logging.getLogger(__name__)
 # Most frames one transaction stores: enough to absorb a burst of requests, few enough that the write lock is
 # held for milliseconds.
 MAX_BATCH_FRAMES = 64
+
+
+class FrameNotStorableError(ValueError):
+    """A frame the store refused on its own (not its camera, not the database): the API answers 422. Validation
+    should have refused it first; each one is logged as an error, because it names a gap in that validation."""
+
+
+# Errors a frame gets as they are: the API has an answer for each.
+_OWN_ERRORS = (CameraNotFoundError, CameraResizedError)
+
+
+def _unavailable(exc: BaseException) -> bool:
+    return isinstance(exc, SQLAlchemyError) and is_database_unavailable(exc)
 
 
 @dataclass(frozen=True)
@@ -153,19 +172,36 @@ class FrameWriter:
                 raise
 
     def store_batch(self, frames: list[NewKeypointFrame]) -> list[tuple[Frame, bool] | Exception]:
-        """Store frames in one transaction, or one at a time if one of them spoils the batch; one answer each.
+        """Store frames in one transaction, without those the store refuses, or one at a time if one of them spoils
+        the batch; one answer each (a (frame, created) pair, or that frame's own error).
 
-        Raises only what fails every frame alike (the database unreachable).
+        Raises only what fails every frame alike (the database unavailable).
         """
-        try:
-            with self.session_factory() as session:
-                stored = add_keypoint_frames(session, frames)
-                session.commit()
-            return list(stored)
-        except IntegrityError:
-            return [self._store_alone(frame) for frame in frames]
+        answers: list[tuple[Frame, bool] | Exception | None] = [None] * len(frames)
+        waiting = list(range(len(frames)))
+        while waiting:
+            try:
+                with self.session_factory() as session:
+                    stored = add_keypoint_frames(session, [frames[i] for i in waiting])
+                    session.commit()
+            except FramesRefusedError as refused:
+                for position, error in refused.errors.items():
+                    answers[waiting[position]] = error
+                waiting = [i for position, i in enumerate(waiting) if position not in refused.errors]
+                continue
+            except Exception as exc:
+                if _unavailable(exc):
+                    raise
+                for i in waiting:
+                    answers[i] = self._store_alone(frames[i])
+                break
+            for i, answer in zip(waiting, stored, strict=True):
+                answers[i] = answer
+            break
+        return cast(list[tuple[Frame, bool] | Exception], answers)  # every position answered above
 
     def _store_alone(self, frame: NewKeypointFrame) -> tuple[Frame, bool] | Exception:
+        """One frame in its own transaction; what fails it is its own answer."""
         try:
             with self.session_factory() as session:
                 stored = add_keypoint_frame(
@@ -179,8 +215,13 @@ class FrameWriter:
                 )
                 session.commit()
             return stored
-        except Exception as exc:
+        except _OWN_ERRORS as exc:
             return exc
+        except Exception as exc:
+            if _unavailable(exc):
+                return exc
+            log.error("a keypoint frame of camera %s could not be stored: %r", frame.camera.id, exc, exc_info=exc)
+            return FrameNotStorableError(f"the frame could not be stored ({type(exc).__name__})")
 
 
 def _fail(batch: list[tuple[NewKeypointFrame, Future[StoredFrame]]], exc: BaseException) -> None:

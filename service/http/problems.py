@@ -25,6 +25,7 @@ from starlette.responses import JSONResponse
 from starlette.routing import BaseRoute, Match
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from service.observability.redact import APP_SECRETS
 from service.observability.request_id import HEADER, current_request_id
 from service.store.db import is_database_unavailable
 
@@ -35,6 +36,26 @@ TYPE_BASE = "https://posemetry.dev/problems/"
 RETRY_AFTER_S = 5
 UNAVAILABLE_HEADERS = {"Retry-After": str(RETRY_AFTER_S)}
 log = logging.getLogger(__name__)
+
+
+PROBLEM_SCHEMA = {
+    "type": "object",
+    "properties": {
+        "type": {"type": "string", "format": "uri"},
+        "title": {"type": "string"},
+        "status": {"type": "integer"},
+        "detail": {"type": "string"},
+        "instance": {"type": "string"},
+        "request_id": {"type": "string", "description": "The request's id, as in the X-Request-ID header."},
+        "errors": {"type": "array", "items": {"type": "object"}},
+    },
+    "required": ["type", "title", "status", "detail"],
+}
+
+
+def problem_response_doc(description: str) -> dict[str, Any]:
+    """An OpenAPI response entry for one status answered with a problem document."""
+    return {"description": description, "content": {PROBLEM_MEDIA_TYPE: {"schema": PROBLEM_SCHEMA}}}
 
 
 class ProblemError(Exception):
@@ -61,10 +82,10 @@ def problem_body(status: int, kind: str, detail: str, instance: str | None = Non
         "type": TYPE_BASE + kind,
         "title": HTTPStatus(status).phrase,
         "status": status,
-        "detail": detail,
+        "detail": APP_SECRETS(detail),  # a detail may repeat the path, where a careless client may have put a key
     }
     if instance is not None:
-        body["instance"] = instance
+        body["instance"] = APP_SECRETS(instance)
     request_id = current_request_id()
     if request_id is not None:
         body["request_id"] = request_id

@@ -33,10 +33,7 @@ def _not_a_boolean(value: object) -> object:
 # integers would also refuse 640.0, which JSON Schema calls an integer, so integers only refuse booleans.
 Number = Annotated[float, Field(strict=True)]
 Integer = Annotated[int, BeforeValidator(_not_a_boolean)]
-FiniteFloat = Annotated[float, Field(allow_inf_nan=False, strict=True)]
 Score = Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False, strict=True)]
-PointPx = tuple[FiniteFloat, FiniteFloat]
-Keypoint = tuple[FiniteFloat, FiniteFloat, Score]
 CameraId = Annotated[str, Field(pattern=CAMERA_ID_PATTERN, examples=["lobby-1"])]
 # Timestamps are RFC 3339 with a zone, or Unix seconds: a JSON number (pydantic reads magnitudes above 2e10 as
 # milliseconds, as JavaScript clients send them) or, in a query string or form, its digits. The JSON schema says

@@ -43,14 +43,27 @@ def forbidden(kind: str, detail: str) -> ProblemError:
     return ProblemError(403, kind, detail, headers={"WWW-Authenticate": f'{REALM}, error="insufficient_scope"'})
 
 
+# Authorization schemes a 401 may name (RFC 7235's registry and common API-key spellings). Anything else in the
+# scheme's place is named by nobody: a key sent without `Bearer ` sits exactly there, and the 401 once echoed
+# its first 20 characters (the key id and 4 secret characters).
+KNOWN_SCHEMES = frozenset(
+    {"basic", "digest", "negotiate", "ntlm", "hoba", "mutual", "vapid", "scram-sha-1", "scram-sha-256", "token"}
+    | {"apikey", "api-key", "aws4-hmac-sha256", "dpop", "gnap", "privatetoken", "concealed"}
+)
+
+
 def bearer_token(authorization: str | None) -> str:
-    """The token of an `Authorization: Bearer <token>` header (scheme case-insensitive), or a 401."""
+    """The token of an `Authorization: Bearer <token>` header (scheme case-insensitive), or a 401.
+
+    No 401 repeats what was sent: only a registered scheme's name, which is no secret."""
     if not authorization or not authorization.strip():
         raise unauthenticated("This route needs an API key: send `Authorization: Bearer <key>`.", token_given=False)
     scheme, _, token = authorization.strip().partition(" ")
     if scheme.lower() != "bearer":
+        named = f"the {scheme.capitalize()} scheme" if scheme.lower() in KNOWN_SCHEMES else "no Bearer scheme"
         raise unauthenticated(
-            f"The Authorization header uses the {scheme[:20]!r} scheme; send `Authorization: Bearer <key>`.",
+            f"The Authorization header uses {named}; send `Authorization: Bearer <key>` (the word Bearer, a "
+            "space, then the key).",
             token_given=False,
         )
     token = token.strip()

@@ -14,13 +14,14 @@ from __future__ import annotations
 
 import logging
 import sys
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from contextvars import ContextVar
 from typing import Any, Literal, TextIO
 
 from pythonjsonlogger.json import JsonFormatter
 
+from service.observability.redact import Redactor
 from service.observability.request_id import current_request_id
 
 LogFormat = Literal["json", "text"]
@@ -85,16 +86,31 @@ class TextFormatter(logging.Formatter):
         return f"{first} {' '.join(extras)}{newline}{rest}"
 
 
-def configure_logging(log_format: LogFormat, level: str | int = "INFO", stream: TextIO | None = None) -> None:
+class RedactingFormatter(logging.Formatter):
+    """Masks API keys and the given secrets in every line (service.observability.redact), however they got there."""
+
+    def __init__(self, inner: logging.Formatter, secrets: Iterable[str] = ()) -> None:
+        super().__init__()
+        self.inner = inner
+        self.redact = Redactor(secrets)
+
+    def format(self, record: logging.LogRecord) -> str:
+        return self.redact(self.inner.format(record))
+
+
+def configure_logging(
+    log_format: LogFormat, level: str | int = "INFO", stream: TextIO | None = None, secrets: Iterable[str] = ()
+) -> None:
     """Replace the root logger's handlers with one stream handler in `log_format`; idempotent.
 
     Loggers that install their own handlers (uvicorn, RQ) are made to propagate to the root instead, so every
-    line of the process comes out in one format.
+    line of the process comes out in one format. API keys and `secrets` are masked in every line.
     """
     if log_format not in LOG_FORMATS:
         raise ValueError(f"log format must be one of {', '.join(LOG_FORMATS)}, got {log_format!r}")
     handler = logging.StreamHandler(stream or sys.stderr)
-    handler.setFormatter(json_formatter() if log_format == "json" else TextFormatter())
+    formatter = json_formatter() if log_format == "json" else TextFormatter()
+    handler.setFormatter(RedactingFormatter(formatter, secrets))
     handler.addFilter(ContextFilter())
     root = logging.getLogger()
     for old in list(root.handlers):

@@ -3,8 +3,9 @@
 A client (or a proxy in front of the API) may send its own id in `X-Request-ID`, so its logs and ours can be
 joined; it is accepted only when well-formed, because it is echoed in a response header and written to logs and
 to the database: at most REQUEST_ID_MAX_LENGTH characters of letters, digits and `.`, `_`, `:`, `-`, starting
-with a letter or digit. Anything else (too long, spaces, control characters, quotes) is replaced by a fresh id
-rather than cleaned up, so an id in our logs is always either the client's exact id or ours.
+with a letter or digit, and holding no API key or configured secret. Anything else (too long, spaces, control
+characters, quotes, a key) is replaced by a fresh id rather than cleaned up, so an id in our logs is always
+either the client's exact id or ours.
 
 The id of the request being served lives in a context variable: set by the HTTP middleware for the duration of
 the request (sync handlers run in a thread pool that copies the context), read by the log filter, the problem
@@ -18,6 +19,8 @@ import re
 from collections.abc import Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
+
+from service.observability.redact import APP_SECRETS
 
 HEADER = "X-Request-ID"
 HEADER_KEY = b"x-request-id"
@@ -47,7 +50,8 @@ def accepted_request_id(value: str | bytes | None) -> str | None:
             value = value.decode("ascii")
         except UnicodeDecodeError:
             return None
-    return value if REQUEST_ID_PATTERN.fullmatch(value) else None
+    # A credential is well-formed too, but an id is echoed and logged: one that holds a key or a secret is not taken.
+    return value if REQUEST_ID_PATTERN.fullmatch(value) and APP_SECRETS(value) == value else None
 
 
 def current_request_id() -> str | None:

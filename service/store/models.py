@@ -97,6 +97,7 @@ IMAGE_CONTENT_TYPES = ("image/jpeg", "image/png")
 POSE_MODEL_MAX_LENGTH = 64
 # service.observability.request_id.REQUEST_ID_MAX_LENGTH (not imported: the store does not depend on the API).
 REQUEST_ID_MAX_LENGTH = 128
+CONTENT_SHA256_LENGTH = 64
 # COCO-17 keypoints as stored: (x px, y px, score) float32, little-endian, one row per keypoint.
 KEYPOINTS_DTYPE = np.dtype("<f4")
 KEYPOINT_COUNT = 17
@@ -211,6 +212,10 @@ class Frame(Base):
     # The id of the request that posted the frame, so the jobs that handle it (pose, measuring in per-camera
     # batches) log under that id too.
     request_id: Mapped[str | None] = mapped_column(String(REQUEST_ID_MAX_LENGTH))
+    # SHA-256 (hex) of what the client posted, in a canonical form (service.frames.digests.keypoint_frame_digest,
+    # image_frame_digest): a post with the frame's client id and other content is a conflict, not a retry. NULL for
+    # frames stored before revision 0007, whose retries cannot be told apart from conflicts.
+    content_sha256: Mapped[str | None] = mapped_column(String(CONTENT_SHA256_LENGTH))
     error: Mapped[str | None]
     processed_at: Mapped[datetime | None]
 
@@ -304,7 +309,13 @@ def pack_keypoints(keypoints: Any) -> bytes:
             return _KEYPOINTS_STRUCT.pack(*chain.from_iterable(keypoints))
         except struct.error:
             pass  # not plain numbers: numpy decides, and names the problem
-    array = np.asarray(keypoints, dtype=KEYPOINTS_DTYPE)
+        except OverflowError:
+            raise ValueError("keypoints must lie within float32's range (|v| < 3.4e38)") from None
+    with np.errstate(over="raise", invalid="raise"):
+        try:
+            array = np.asarray(keypoints, dtype=KEYPOINTS_DTYPE)
+        except FloatingPointError:
+            raise ValueError("keypoints must lie within float32's range (|v| < 3.4e38)") from None
     if array.shape != (KEYPOINT_COUNT, 3):
         raise ValueError(f"keypoints must be {KEYPOINT_COUNT} rows of (x, y, score), got shape {array.shape}")
     return array.tobytes()

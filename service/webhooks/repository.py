@@ -275,6 +275,15 @@ def claim_attempt(
     return Claim(delivery_id, attempt, subscription.url, tuple(secrets), str(event.id), event.body.encode())
 
 
+def previous_lease_until(session: Session, delivery_id: uuid.UUID, attempt: int) -> datetime | None:
+    """When the lease of the attempt before `attempt` runs out, if that lease is all that may hold `attempt` back
+    (the delivery still pending, with attempt - 1 made); None otherwise."""
+    delivery = session.get(WebhookDelivery, delivery_id)
+    if delivery is None or delivery.status != "pending" or delivery.attempts != attempt - 1:
+        return None
+    return delivery.lease_until
+
+
 @dataclass(frozen=True)
 class AttemptRecord:
     """How an attempt ended (its answer, or what prevented one), what that means for its delivery, and when the

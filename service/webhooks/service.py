@@ -20,17 +20,26 @@ from service.observability.logs import WEBHOOK_JOBS_LOGGER
 from service.observability.metrics import WebhookOutcome, record_webhook_delivery
 from service.settings import Settings
 from service.store.models import utc_now
-from service.store.sessions import transaction
+from service.store.sessions import read_session_factory, transaction
 
 from .delivery import decide_attempt, send, utc_timestamp_s
-from .repository import AttemptRecord, Claim, claim_attempt, prune_webhook_log, record_attempt
+from .repository import (
+    AttemptRecord,
+    Claim,
+    claim_attempt,
+    previous_lease_until,
+    prune_webhook_log,
+    record_attempt,
+)
 from .signing import signed_headers
 
 log = logging.getLogger(WEBHOOK_JOBS_LOGGER)
 
-# How long past the request timeout an attempt's lease lasts: a worker that died mid-request frees its
-# delivery for the next attempt this long after the request would have timed out.
-LEASE_MARGIN_S = 60.0
+# RQ schedules jobs to the whole second, so an attempt queued for the moment its predecessor's lease runs out (a
+# worker killed in the middle of an attempt; the start-up pass queues the next one then) may start up to a second
+# early. It waits that lease out instead of finding the delivery taken and leaving it to the periodic sweep, which
+# comes a minute and more later.
+SCHEDULE_SLACK_S = 2.0
 # Each worker process prunes the delivery log at most this often (one DELETE, after a delivery).
 PRUNE_INTERVAL_S = 3600.0
 # The delivery-metric label of each decision; an attempt the SSRF policy refused counts as `blocked`.
@@ -41,8 +50,12 @@ _last_prune_s = -PRUNE_INTERVAL_S
 def deliver(settings: Settings, dispatcher: Dispatcher, delivery_id: uuid.UUID, attempt: int) -> str:
     """Make attempt number `attempt` of a delivery; returns delivered, retry, failed, or why nothing was sent
     (gone, skipped, paused)."""
-    with transaction(settings) as session:
-        claim = claim_attempt(session, delivery_id, attempt, lease_s=3 * settings.webhook_timeout_s + LEASE_MARGIN_S)
+    claim = _claim(settings, delivery_id, attempt)
+    if claim == "skipped":
+        left_s = _lease_left_s(settings, delivery_id, attempt)
+        if left_s is not None and 0 < left_s <= SCHEDULE_SLACK_S:
+            time.sleep(left_s + 0.05)
+            claim = _claim(settings, delivery_id, attempt)
     if isinstance(claim, str):
         return claim
     record = _attempt(claim, settings)
@@ -59,6 +72,19 @@ def deliver(settings: Settings, dispatcher: Dispatcher, delivery_id: uuid.UUID, 
             log.warning("could not queue retry %d of delivery %s (the sweep will): %s", attempt + 1, delivery_id, exc)
     _prune_now_and_then(settings)
     return outcome
+
+
+def _claim(settings: Settings, delivery_id: uuid.UUID, attempt: int) -> Claim | str:
+    lease_s = 3 * settings.webhook_timeout_s + settings.webhook_lease_margin_s
+    with transaction(settings) as session:
+        return claim_attempt(session, delivery_id, attempt, lease_s=lease_s)
+
+
+def _lease_left_s(settings: Settings, delivery_id: uuid.UUID, attempt: int) -> float | None:
+    """Seconds until the lease of the attempt before `attempt` runs out, if that lease is all that holds it back."""
+    with read_session_factory(settings)() as session:
+        lease_until = previous_lease_until(session, delivery_id, attempt)
+    return None if lease_until is None else (lease_until - utc_now()).total_seconds()
 
 
 def _attempt(claim: Claim, settings: Settings) -> AttemptRecord:

@@ -34,7 +34,10 @@ from rq.registry import StartedJobRegistry
 from bench.simulate import Scene, SceneConfig, draw_scene
 from service.embedded_redis import redis_server_binary
 from service.http.problems import PROBLEM_MEDIA_TYPE
-from tests.support.serving import REPO, free_port, stop
+from service.store.migrate import upgrade
+from tests.support.postgres import PostgresCluster, cluster_or_skip
+from tests.support.serving import REPO, clean_environment, free_port, stop
+from tests.support.shared import model_dir_path
 
 # Generous: a loaded two-core CI machine runs these next to everything else.
 DEADLINE_S = 90.0
@@ -327,3 +330,55 @@ class Supervised:
         self._thread.join()
         with running(self.process):
             pass
+
+
+# --------------------------------------------------------------------------------------------------- Compose
+
+
+@dataclass
+class Stack:
+    """The Compose deployment, process by process: PostgreSQL, a redis-server, `posemetry api` and two supervised
+    `posemetry worker` processes."""
+
+    cluster: PostgresCluster
+    database_url: str
+    redis: RedisServer
+    api: subprocess.Popen[bytes]
+    client: Client
+    workers: list[Supervised]
+    queue_redis: redis.Redis
+
+
+@contextmanager
+def compose_stack(**settings: str) -> Iterator[Stack]:
+    """Start the stack as Compose would (migrate first), with `settings` (names without the prefix) on top of
+    cameras that calibrate only when a test forces a solve; the API must survive whatever the test does."""
+    cluster = cluster_or_skip()
+    cluster.start()
+    redis_server = RedisServer().start()
+    try:
+        url = cluster.create_database("posemetry")
+        upgrade(url)  # Compose's `migrate` service
+        env = clean_environment(
+            database_url=url,
+            redis_url=redis_server.url,
+            calibration_min_people=str(10**9),
+            model_dir=str(model_dir_path()),
+            **settings,
+        )
+        api, base = api_process(env)
+        workers = [Supervised(lambda: posemetry(["worker"], env)) for _ in range(2)]
+        with running(api):
+            client = Client(base, env["POSEMETRY_ADMIN_KEY"])
+            wait_until(client.ready, "the API to be ready")
+            queue_redis = redis.Redis(unix_socket_path=str(redis_server.socket))
+            try:
+                yield Stack(cluster, url, redis_server, api, client, workers, queue_redis)
+            finally:
+                queue_redis.close()
+                for worker in workers:
+                    worker.stop()
+            assert api.poll() is None, "the API process died"
+    finally:
+        redis_server.stop()
+        cluster.stop()

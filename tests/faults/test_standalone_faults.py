@@ -14,81 +14,34 @@ under it); the API is not: it must ride out both outages.
 
 from __future__ import annotations
 
-import subprocess
 import threading
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass
 
 import pytest
-import redis
 
-from service.store.migrate import upgrade
 from tests.faults.harness import (
     Answer,
     Client,
-    RedisServer,
     SimulatedCamera,
-    Supervised,
-    api_process,
+    Stack,
+    compose_stack,
     create_camera,
     kill_worker_running,
-    posemetry,
     post_frames,
     post_until_accepted,
-    running,
     started_job,
     wait_until,
 )
-from tests.support.postgres import PostgresCluster, cluster_or_skip
-from tests.support.serving import clean_environment
-from tests.support.shared import model_dir_path
 
 RECOVERY_DEADLINE_S = 60.0
 REDIS_DOWN_S = 1.5
 
 
-@dataclass
-class Stack:
-    cluster: PostgresCluster
-    redis: RedisServer
-    api: subprocess.Popen[bytes]
-    client: Client
-    workers: list[Supervised]
-    queue_redis: redis.Redis
-
-
 @pytest.fixture(scope="module")
 def stack() -> Iterator[Stack]:
-    cluster = cluster_or_skip()
-    cluster.start()
-    redis_server = RedisServer().start()
-    try:
-        url = cluster.create_database("posemetry")
-        upgrade(url)  # Compose's `migrate` service
-        env = clean_environment(
-            database_url=url,
-            redis_url=redis_server.url,
-            calibration_min_people=str(10**9),  # cameras calibrate when a test forces a solve
-            calibration_sample_cap="20000",
-            model_dir=str(model_dir_path()),
-        )
-        api, base = api_process(env)
-        workers = [Supervised(lambda: posemetry(["worker"], env)) for _ in range(2)]
-        with running(api):
-            client = Client(base, env["POSEMETRY_ADMIN_KEY"])
-            wait_until(client.ready, "the API to be ready")
-            queue_redis = redis.Redis(unix_socket_path=str(redis_server.socket))
-            try:
-                yield Stack(cluster, redis_server, api, client, workers, queue_redis)
-            finally:
-                queue_redis.close()
-                for worker in workers:
-                    worker.stop()
-            assert api.poll() is None, "the API process died"
-    finally:
-        redis_server.stop()
-        cluster.stop()
+    with compose_stack(calibration_sample_cap="20000") as started:
+        yield started
 
 
 def big_camera(client: Client, camera_id: str) -> tuple[SimulatedCamera, list[str]]:

@@ -35,13 +35,13 @@ def _far_outside(x: float, y: float) -> bool:
 
 @settings(max_examples=300, deadline=None)
 @given(st.lists(person, min_size=1, max_size=4))
-def test_a_frame_is_refused_exactly_when_a_scored_keypoint_is_far_outside(people: list[list[tuple]]) -> None:
+def test_a_frame_is_refused_exactly_when_a_keypoint_is_far_outside(people: list[list[tuple]]) -> None:
     posted = [PersonObservation(keypoints=[list(k) for k in keypoints]) for keypoints in people]
     bad = [
         f"body.people[{i}].keypoints[{k}]"
         for i, keypoints in enumerate(people)
-        for k, (x, y, score) in enumerate(keypoints)
-        if score > 0 and _far_outside(x, y)
+        for k, (x, y, _score) in enumerate(keypoints)
+        if _far_outside(x, y)  # whatever the score: a score of 0 is no licence for an unstorable number
     ]
     if not bad:
         rows = people_for_camera(posted, CAMERA, SETTINGS)

@@ -14,14 +14,9 @@ from sqlalchemy.orm import Session
 
 from service.cameras.repository import CameraNotFoundError
 from service.domain import FrameOutcome, PersonIn
-from service.frames import repository as frames_repository
-from service.frames.repository import (
-    add_keypoint_frame,
-    frame_observations,
-    get_frame,
-    pending_frames,
-    record_frame_outcomes,
-)
+from service.frames import ingest
+from service.frames.ingest import add_keypoint_frame
+from service.frames.repository import frame_observations, get_frame, pending_frames, record_frame_outcomes
 from service.store import make_session_factory
 from service.store.models import Frame, Observation
 from tests.support.store import GRID_COLS, T0, add_camera, add_frame, count, evidence_count, person_at, person_in_cell
@@ -94,14 +89,14 @@ def test_a_retry_that_loses_the_race_returns_the_winners_frame(
         winner, _ = add_keypoint_frame(other, "cam-1", timestamp=T0, people=[person_in_cell(0)], client_frame_id="f-1")
         other.commit()
 
-    real_lookup = frames_repository._frame_by_client_id
+    real_lookup = ingest._frame_by_client_id
     calls = []
 
     def stale_first_lookup(*args: Any) -> Frame | None:
         calls.append(args)
         return None if len(calls) == 1 else real_lookup(*args)
 
-    monkeypatch.setattr(frames_repository, "_frame_by_client_id", stale_first_lookup)
+    monkeypatch.setattr(ingest, "_frame_by_client_id", stale_first_lookup)
     frame, created = add_keypoint_frame(
         session, "cam-1", timestamp=T0, people=[person_in_cell(0)], client_frame_id="f-1"
     )

@@ -15,7 +15,8 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from service.cameras.repository import CameraNotFoundError
 from service.frames import writer as frame_writer
-from service.frames.repository import NewKeypointFrame, add_keypoint_frames, frame_observations
+from service.frames.ingest import NewKeypointFrame, add_keypoint_frames
+from service.frames.repository import frame_observations
 from service.frames.writer import FrameWriter
 from service.store import make_session_factory
 from service.store.models import Camera, Frame, Observation

@@ -105,8 +105,8 @@ def test_openapi_declares_the_bearer_scheme_and_auth_problems(app: FastAPI) -> N
     [
         (None, "needs an API key", False),
         ("", "needs an API key", False),
-        ("Basic dXNlcjpwYXNz", "'Basic' scheme", False),
-        (f"Token {ADMIN_KEY}", "'Token' scheme", False),
+        ("Basic dXNlcjpwYXNz", "the Basic scheme", False),
+        (f"Token {ADMIN_KEY}", "the Token scheme", False),
         ("Bearer", "no key after `Bearer`", False),
         ("Bearer    ", "no key after `Bearer`", False),
         ("Bearer not-a-key", "not a posemetry api key", True),

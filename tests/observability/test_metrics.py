@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 from prometheus_client import REGISTRY
 
-from service.observability.logs import TextFormatter, configure_logging, log_context
+from service.observability.logs import RedactingFormatter, TextFormatter, configure_logging, log_context
 from service.observability.metrics import WEBHOOK_OUTCOMES, record_webhook_delivery
 from service.observability.multiprocess import ENV, sweep_dead_processes, use_directory
 from service.observability.request_id import accepted_request_id, request_id_context
@@ -93,7 +93,7 @@ def test_text_lines_append_their_context() -> None:
     assert first.endswith("ERROR workers.jobs: solve failed request_id=req-9 job_id=job-1 camera_id=lobby")
     assert traceback[-1] == "ValueError: boom"
     assert last.endswith("INFO workers.jobs: outside")
-    assert isinstance(handler.formatter, TextFormatter)
+    assert isinstance(handler.formatter, RedactingFormatter) and isinstance(handler.formatter.inner, TextFormatter)
 
 
 @pytest.mark.parametrize(

@@ -171,8 +171,14 @@ def test_a_worker_given_only_a_metrics_port_keeps_its_metrics_in_a_directory_of_
 
     try:
         wait_for(worker, all_done, "every frame measured")
-        metrics = _eventually(lambda: _scrape_port(port), worker)
+
+        def measuring_recorded() -> bool:
+            # A job's duration is recorded as it ends, just after its frames are committed as done.
+            scrape = _eventually(lambda: _scrape_port(port), worker)
+            count = scrape.value("posemetry_job_duration_seconds_count", queue=FRAMES_QUEUE, outcome="succeeded")
+            return count is not None and count >= 1
+
+        # Recorded in the forked job processes, and still on the worker's port.
+        wait_for(worker, measuring_recorded, "the measuring job's duration on the worker's metrics port")
     finally:
         assert stop(worker) == 0
-    # Recorded in the forked job processes, and still on the worker's port.
-    assert metrics.value("posemetry_job_duration_seconds_count", queue=FRAMES_QUEUE, outcome="succeeded") >= 1

@@ -13,7 +13,8 @@ from fastapi.testclient import TestClient
 from service.calibration.repository import add_calibration
 from service.cameras.repository import get_camera
 from service.domain import CalibrationValues
-from service.frames.repository import get_frame, record_detections
+from service.frames.ingest import record_detections
+from service.frames.repository import get_frame
 from tests.support.app import HEIGHT_PX, WIDTH_PX, assert_problem, encoded, frame_body
 from tests.support.measure import process_frame
 

@@ -27,8 +27,8 @@ from service.calibration.repository import calibration_history
 from service.cameras.repository import upsert_camera
 from service.embedded_redis import EmbeddedRedis
 from service.frames.images import read_header
+from service.frames.ingest import add_image_frame, add_keypoint_frame
 from service.frames.keypoints import person_from_centres
-from service.frames.repository import add_image_frame, add_keypoint_frame
 from service.queue import QUEUES, RedisDispatcher, connect
 from service.settings import get_settings
 from service.store import sessions as store_sessions

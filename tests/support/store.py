@@ -13,7 +13,8 @@ from sqlalchemy.orm import Session
 from service.calibration.evidence import key_new_evidence
 from service.cameras.repository import upsert_camera
 from service.domain import CalibrationValues, FrameOutcome, PersonIn, ViolationIn
-from service.frames.repository import add_keypoint_frame, record_frame_outcomes
+from service.frames.ingest import add_keypoint_frame
+from service.frames.repository import record_frame_outcomes
 from service.geometry import DEFAULT_HEIGHT_M
 from service.geometry.evidence import SAMPLE_GRID
 from service.store.models import Camera, Frame, Observation

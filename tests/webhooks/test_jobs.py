@@ -30,8 +30,9 @@ from sqlalchemy.orm import Session, sessionmaker
 from service.app import create_app
 from service.cameras.repository import delete_camera
 from service.domain import METRES_PER_FOOT
+from service.frames.ingest import add_keypoint_frame
 from service.frames.keypoints import person_from_centres
-from service.frames.repository import add_keypoint_frame, get_frame
+from service.frames.repository import get_frame
 from service.observability.metrics import WEBHOOK_DELIVERIES, WEBHOOK_OUTCOMES
 from service.queue import WEBHOOKS_QUEUE, RedisDispatcher, webhook_job_id
 from service.settings import get_settings
