@@ -325,6 +325,20 @@ def bench_recall(
         markdown.write_text("```\n" + "\n".join(lines) + "\n```\n")
 
 
+@bench_app.command("movement")
+def bench_movement(
+    seeds: int = typer.Option(3, min=1, help="Streets (random seeds) per move and per static crowd."),
+    static_minutes: float = typer.Option(50.0, min=5.0, help="Frame time of each static run, minutes."),
+    move_at_s: float = typer.Option(300.0, min=150.0, help="When the camera moves, seconds of frame time."),
+) -> None:
+    """How fast camera moves are found (pan + tilt, zoom, nudges, a pure pan) and how rarely a static camera with
+    children, sitting people and school classes raises a false move."""
+    from bench.movement import movement_lines
+
+    typer.echo(f"posemetry movement benchmark ({os.cpu_count()} CPUs, Python {sys.version.split()[0]})")
+    typer.echo("\n".join(movement_lines(seeds, static_minutes * 60.0, move_at_s)))
+
+
 @bench_app.command("telemetry")
 def bench_telemetry(
     requests: int = typer.Option(20000, min=100, help="Requests per timed round."),

@@ -16,7 +16,7 @@ from sqlalchemy import BigInteger, ColumnElement, Select, Table, literal, select
 from sqlalchemy.orm import Session
 
 from service.geometry.evidence import SAMPLE_GRID
-from service.store.models import SAMPLE_KEY_SPACE, Observation
+from service.store.models import SAMPLE_KEY_SPACE, Camera, Observation
 
 GRID_CELLS = SAMPLE_GRID[0] * SAMPLE_GRID[1]
 _OBSERVATIONS = cast(Table, Observation.__table__)
@@ -100,11 +100,12 @@ _SAMPLE_COLUMNS = (
 )
 
 
-def _cell_page(camera_id: str, cell: int, cursor: _CellCursor, n: int) -> Select[*tuple[Any, ...]]:
-    """The next n rows of one cell: an index range scan on (camera_id, usable, cell, sample_key)."""
+def _cell_page(camera_id: str, epoch: int, cell: int, cursor: _CellCursor, n: int) -> Select[*tuple[Any, ...]]:
+    """The next n rows of one cell: an index range scan on (camera_id, epoch, usable, cell, sample_key)."""
     key, oid = Observation.sample_key, Observation.id
     conditions = [
         Observation.camera_id == camera_id,
+        Observation.epoch == epoch,
         Observation.usable == true(),
         Observation.cell == cell,
         key.is_not(None),  # the partial index holds keyed people only
@@ -120,8 +121,11 @@ def _cell_page(camera_id: str, cell: int, cursor: _CellCursor, n: int) -> Select
     return select(*_SAMPLE_COLUMNS).where(*conditions).order_by(key, oid).limit(n)
 
 
-def sample_evidence(session: Session, camera_id: str, *, cap: int, seed: int = 0) -> EvidenceSample:
-    """At most `cap` usable observations, spread as evenly over the image grid as the data allow.
+def sample_evidence(
+    session: Session, camera_id: str, *, cap: int, seed: int = 0, epoch: int | None = None
+) -> EvidenceSample:
+    """At most `cap` usable observations of one calibration epoch (default: the camera's current one), spread as
+    evenly over the image grid as the data allow.
 
     Round-robin over grid cells: every cell contributes equally, and cells with fewer people than their share
     give the remainder to the others (water-filling). Within a cell the order is the stored pseudo-random
@@ -133,6 +137,8 @@ def sample_evidence(session: Session, camera_id: str, *, cap: int, seed: int = 0
     """
     if cap < 1:
         raise ValueError(f"cap must be positive, got {cap}")
+    if epoch is None:
+        epoch = session.execute(select(Camera.epoch).where(Camera.id == camera_id)).scalar_one_or_none() or 1
     rng = random.Random(seed)
     start = rng.randrange(SAMPLE_KEY_SPACE)
     cell_order = list(range(GRID_CELLS))
@@ -148,7 +154,7 @@ def sample_evidence(session: Session, camera_id: str, *, cap: int, seed: int = 0
                 break
             level += -(-(cap - total) // len(active))
             wanted = {cell: level - len(cursors[cell].rows) for cell in active}
-        pages = [_cell_page(camera_id, cell, cursors[cell], n) for cell, n in sorted(wanted.items())]
+        pages = [_cell_page(camera_id, epoch, cell, cursors[cell], n) for cell, n in sorted(wanted.items())]
         stmt = pages[0] if len(pages) == 1 else union_all(*(page.subquery().select() for page in pages))
         rows = session.execute(stmt).all()
         queries += 1

@@ -14,7 +14,17 @@ from sqlalchemy.orm import Session
 
 from service.cameras.repository import existing_camera
 from service.domain import CalibrationValues
-from service.store.models import CALIBRATION_STATUSES, CalibrationVersion, Observation, finite_or_none, utc_now
+from service.store.models import (
+    CALIBRATION_STATUSES,
+    CalibrationVersion,
+    Camera,
+    Frame,
+    MovementMonitor,
+    Observation,
+    ViolationEvent,
+    finite_or_none,
+    utc_now,
+)
 
 
 def add_calibration(
@@ -25,6 +35,7 @@ def add_calibration(
     make_current: bool,
     forced: bool = False,
     now: datetime | None = None,
+    epoch: int | None = None,
 ) -> CalibrationVersion:
     """Append the camera's next calibration version; it replaces the current one only if make_current.
 
@@ -38,6 +49,9 @@ def add_calibration(
     if make_current and values.status != "ok":
         raise ValueError("only a successful calibration can become current")
     camera = existing_camera(session, camera_id, for_update=True)
+    epoch = camera.epoch if epoch is None else epoch
+    stale = epoch != camera.epoch
+    make_current = make_current and not stale
     last = session.execute(
         select(func.max(CalibrationVersion.version)).where(CalibrationVersion.camera_id == camera_id)
     ).scalar_one()
@@ -56,6 +70,7 @@ def add_calibration(
     record = CalibrationVersion(
         camera_id=camera_id,
         version=(last or 0) + 1,
+        epoch=epoch,
         status=values.status,
         reason=values.reason,
         fx_px=finite_or_none(values.fx_px),
@@ -83,7 +98,8 @@ def add_calibration(
         created_at=now or utc_now(),
     )
     session.add(record)
-    camera.evidence_at_last_solve = values.evidence_count
+    if not stale:
+        camera.evidence_at_last_solve = values.evidence_count
     session.flush()
     return record
 
@@ -112,20 +128,90 @@ def calibration_history(
     return list(session.scalars(stmt.order_by(CalibrationVersion.version.desc()).limit(limit)))
 
 
-def reset_calibration(session: Session, camera_id: str, *, drop_evidence: bool = False) -> None:
-    """Make the camera uncalibrated again (history is kept); optionally forget its stored observations too.
-
-    Dropping evidence is what a moved camera or a changed resolution needs: old people no longer fit the view.
-    """
-    camera = existing_camera(session, camera_id, for_update=True)
+def _close_epoch(session: Session, camera: Camera, reason: str, moved_at: datetime | None) -> None:
+    """Open the camera's next epoch: no version is current, the movement test starts again and the evidence
+    counters start from nothing (the caller counts what the new epoch already holds)."""
     session.execute(
         update(CalibrationVersion)
-        .where(CalibrationVersion.camera_id == camera_id, CalibrationVersion.is_current == true())
+        .where(CalibrationVersion.camera_id == camera.id, CalibrationVersion.is_current == true())
         .values(is_current=False)
         .execution_options(synchronize_session="fetch")
     )
+    session.execute(delete(MovementMonitor).where(MovementMonitor.camera_id == camera.id))
+    camera.epoch += 1
+    camera.epoch_reason = reason
+    camera.moved_at = moved_at
     camera.evidence_at_last_solve = 0
+    camera.usable_evidence_count = 0
+    camera.updated_at = utc_now()
+
+
+def reset_calibration(session: Session, camera_id: str, *, drop_evidence: bool = False, reason: str = "reset") -> None:
+    """Make the camera uncalibrated again in a new epoch: history and (unless dropped) its people stay stored,
+    but nothing from before feeds a solve any more.
+
+    Dropping evidence is what a changed resolution needs (old people's pixels mean nothing in the new image); a
+    user who resets a camera that moved can keep them for audit.
+    """
+    camera = existing_camera(session, camera_id, for_update=True)
+    _close_epoch(session, camera, reason, None)
     if drop_evidence:
         session.execute(delete(Observation).where(Observation.camera_id == camera_id))
-        camera.usable_evidence_count = 0
+    session.flush()
+
+
+def open_epoch_after_move(session: Session, camera_id: str, *, from_epoch: int, moved_at: datetime) -> bool:
+    """The camera moved at `moved_at` (the first frame of the new view): open its next epoch, unless `from_epoch`
+    is already closed (a reset or another move won the race); returns whether it opened one.
+
+    Frames from `moved_at` on belong to the new view: their people join the new epoch (the evidence it starts
+    with), and those already measured with the old calibration lose their results and violation events and wait
+    to be measured again once the new epoch calibrates.
+    """
+    camera = existing_camera(session, camera_id, for_update=True)
+    if camera.epoch != from_epoch:
+        return False
+    _close_epoch(session, camera, "camera_moved", moved_at)
+    camera.moves += 1
+    new_view = select(Frame.id).where(Frame.camera_id == camera_id, Frame.timestamp >= moved_at)
+    session.execute(
+        update(Observation)
+        .where(Observation.camera_id == camera_id, Observation.epoch == from_epoch, Observation.frame_id.in_(new_view))
+        .values(epoch=camera.epoch)
+        .execution_options(synchronize_session=False)
+    )
+    session.execute(
+        delete(ViolationEvent)
+        .where(ViolationEvent.camera_id == camera_id, ViolationEvent.frame_id.in_(new_view))
+        .execution_options(synchronize_session=False)
+    )
+    session.execute(
+        update(Frame)
+        .where(Frame.camera_id == camera_id, Frame.timestamp >= moved_at, Frame.calibration_version.is_not(None))
+        .values(status="pending", result=None, calibration_version=None, error=None, processed_at=None)
+        .execution_options(synchronize_session=False)
+    )
+    camera.usable_evidence_count = session.execute(
+        select(func.count()).where(
+            Observation.camera_id == camera_id, Observation.epoch == camera.epoch, Observation.usable == true()
+        )
+    ).scalar_one()
+    session.flush()
+    return True
+
+
+def movement_state(session: Session, camera_id: str) -> MovementMonitor | None:
+    return session.get(MovementMonitor, camera_id)
+
+
+def save_movement_state(
+    session: Session, camera_id: str, *, epoch: int, calibration_version: int, state: bytes, statistic: float
+) -> None:
+    """Keep the movement test's state for the camera's next measuring job (one row per camera)."""
+    row = session.get(MovementMonitor, camera_id)
+    if row is None:
+        row = MovementMonitor(camera_id=camera_id)
+        session.add(row)
+    row.epoch, row.calibration_version, row.state, row.statistic = epoch, calibration_version, state, statistic
+    row.updated_at = utc_now()
     session.flush()

@@ -39,6 +39,7 @@ router = APIRouter(prefix="/v1/cameras", tags=["calibration"])
 def version_out(version: CalibrationVersion) -> CalibrationVersionOut:
     return CalibrationVersionOut(
         version=version.version,
+        epoch=version.epoch,
         status=version.status,  # type: ignore[arg-type]
         reason=version.reason,
         is_current=version.is_current,
@@ -64,6 +65,9 @@ def calibration_status(session: Session, camera: Camera, settings: Settings) -> 
     fields = {
         "camera_id": camera.id,
         "status": state,
+        "reason": camera.epoch_reason if current is None else None,
+        "epoch": camera.epoch,
+        "moved_at": camera.moved_at if camera.epoch_reason == "camera_moved" else None,
         "people_needed": needed,
         "evidence_count": camera.usable_evidence_count,
         "last_failure": last_failure,
@@ -121,10 +125,11 @@ def reset_calibration(
     settings: SettingsDep,
     dispatcher: DispatcherDep,
     drop_evidence: Annotated[
-        bool, Query(description="Also forget the stored people (the camera moved or its view changed).")
+        bool, Query(description="Also delete the stored people (they stay stored for audit otherwise).")
     ] = False,
 ) -> CalibrationStatus:
-    """Make the camera uncalibrated (history is kept); with stored evidence, a fresh solve is requested."""
+    """Make the camera uncalibrated in a new calibration epoch: history and (unless dropped) people stay stored,
+    but only people posted from now on feed its solves."""
     camera = require_camera(session, camera_id)
     was_calibrated = repository.current_calibration(session, camera_id) is not None
     repository.reset_calibration(session, camera_id, drop_evidence=drop_evidence)

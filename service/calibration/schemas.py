@@ -66,6 +66,7 @@ def solution_fields(version: CalibrationVersion) -> dict[str, Any]:
 
 class _VersionHeader(BaseModel):
     version: int
+    epoch: int = Field(description="The calibration epoch whose evidence the solve used.")
     status: Literal["ok", "failed"]
     reason: str | None
     is_current: bool
@@ -93,12 +94,25 @@ class CalibrationStatus(BaseModel):
     (both shoulders and both ankles seen, not at the image border) must arrive before the next solve.
     `calibrating`: enough evidence for a solve that has not produced a current calibration yet.
     `calibrated`: the fields below describe the current version.
+
+    Evidence and solves belong to a calibration epoch: 1 for a new camera, and one more every time the camera is
+    found to have moved (`reason` camera_moved, with `moved_at`), is reset (`reset`) or changes image size
+    (`image_size_changed`). Only the current epoch's people feed solves; older ones stay stored.
     """
 
     camera_id: str
     status: Literal["uncalibrated", "calibrating", "calibrated"]
+    reason: Literal["camera_moved", "reset", "image_size_changed"] | None = Field(
+        description="Why a camera that had a calibration has none now: the current epoch's reason while the "
+        "epoch has no calibration yet (null otherwise, and for a new camera)."
+    )
+    epoch: int = Field(description="The camera's calibration epoch: 1 for a new camera, +1 at every move or reset.")
+    moved_at: datetime | None = Field(
+        description="When the current epoch was opened by a detected move: the timestamp of the first frame "
+        "judged to be from the new view (null for other epochs)."
+    )
     people_needed: int = Field(description="More usable people needed before the next solve (0 when due).")
-    evidence_count: int = Field(description="Usable people stored for this camera now.")
+    evidence_count: int = Field(description="Usable people stored for this camera's current epoch.")
     version: int | None
     fx_px: float | None
     fy_px: float | None

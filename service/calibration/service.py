@@ -128,7 +128,8 @@ def solve_camera(settings: Settings, dispatcher: RedisDispatcher, camera_id: str
         camera = session.get(Camera, camera_id)
         if camera is None:
             return GONE
-        sample = evidence.sample_evidence(session, camera_id, cap=settings.calibration_sample_cap)
+        epoch = camera.epoch
+        sample = evidence.sample_evidence(session, camera_id, cap=settings.calibration_sample_cap, epoch=epoch)
         evidence_count = int(camera.usable_evidence_count)
         image_size = (camera.image_width_px, camera.image_height_px)
         height_m, equal_focal, known_focal_px = camera.person_height_m, camera.equal_focal, camera.known_focal_px
@@ -159,7 +160,8 @@ def solve_camera(settings: Settings, dispatcher: RedisDispatcher, camera_id: str
             make_current = values.status == "ok" and (
                 forced or current is None or at_least_as_supported(values, current)
             )
-            record = add_calibration(session, camera_id, values, make_current=make_current, forced=forced)
+            record = add_calibration(session, camera_id, values, make_current=make_current, forced=forced, epoch=epoch)
+            make_current = record.is_current  # False for an epoch that closed while the solve ran
             version = record.version
             waiting = make_current and bool(pending_frames(session, camera_id, limit=1))
             deliveries = calibration_deliveries(session, camera_id, record, current) if make_current else []

@@ -80,7 +80,7 @@ def apply_settings(session: Session, camera_id: str, body: CameraSettings) -> Se
     if old is not None:
         if old[:2] != (body.image_width_px, body.image_height_px):
             was_calibrated = current_calibration(session, camera_id) is not None
-            reset_calibration(session, camera_id, drop_evidence=True)
+            reset_calibration(session, camera_id, drop_evidence=True, reason="image_size_changed")
             fail_unfinished_frames(
                 session,
                 camera_id,

@@ -145,23 +145,29 @@ def _insert_observations(session: Session, camera_id: str, rows: Sequence[dict[s
     """Insert a frame's people and count its usable ones on the camera (the counter that drives re-solves)."""
     if not rows:
         return
+    usable = sum(1 for row in rows if row["usable"])
+    epoch = session.execute(_COUNT_EVIDENCE, {"camera": camera_id, "usable": usable}).scalar_one_or_none()
+    _set_epochs(rows, {camera_id: epoch or 1})  # a camera deleted meanwhile: the foreign key refuses the rows
     session.execute(insert(_OBSERVATIONS), rows)
-    _count_evidence(session, {camera_id: sum(1 for row in rows if row["usable"])})
 
 
+# The camera's calibration epoch is read by the statement that takes the camera row's lock (PostgreSQL re-reads a
+# row another transaction changed before it updates it), so people stored while a move or a reset opens the next
+# epoch (service.calibration.repository, which locks the same row) are never counted in one epoch and stored in
+# another.
 _COUNT_EVIDENCE = (
     update(_CAMERAS)
     .where(_CAMERAS.c.id == bindparam("camera"))
     .values(usable_evidence_count=_CAMERAS.c.usable_evidence_count + bindparam("usable"))
+    .returning(_CAMERAS.c.epoch)
 )
+_EPOCHS = select(_CAMERAS.c.id, _CAMERAS.c.epoch).where(_CAMERAS.c.id.in_(bindparam("ids", expanding=True)))
 
 
-def _count_evidence(session: Session, usable: dict[str, int]) -> None:
-    """Add newly stored usable people to their cameras' counters: one Core statement, executed once per camera by
-    the driver (executemany), inside the writer's transaction, which holds SQLite's one write lock."""
-    rows = [{"camera": camera_id, "usable": n} for camera_id, n in usable.items() if n]
-    if rows:
-        session.execute(_COUNT_EVIDENCE, rows)
+def _set_epochs(rows: Sequence[dict[str, Any]], epochs: dict[str, int]) -> None:
+    """People join their camera's current calibration epoch."""
+    for row in rows:
+        row["epoch"] = epochs.get(row["camera_id"], 1)
 
 
 _CURRENT_SIZES = (
@@ -348,6 +354,9 @@ def add_keypoint_frames(
     if frame_rows:
         session.execute(insert(_FRAMES), frame_rows)
     if observation_rows:
+        # After the counters' update, which holds the cameras' rows until commit: their epochs cannot change now.
+        epochs = session.execute(_EPOCHS, {"ids": sorted(usable)}).all()
+        _set_epochs(observation_rows, {camera_id: epoch for camera_id, epoch in epochs})
         session.execute(insert(_OBSERVATIONS), observation_rows)
     for frame, created in results:
         if created:

@@ -9,13 +9,16 @@ from __future__ import annotations
 import logging
 import time
 import uuid
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
+from functools import partial
 from typing import TYPE_CHECKING, Any
 
 from sqlalchemy.exc import SQLAlchemyError
+from sqlalchemy.orm import Session
 
-from service.calibration.repository import current_calibration
+from service.calibration import moves
+from service.calibration.repository import current_calibration, movement_state
 from service.calibration.service import calibration_due, calibration_from_version
 from service.domain import DONE, FAILED, GONE, PENDING, FrameOutcome, PersonIn, StoredCentres
 from service.frames.keypoints import person_from_centres, person_from_keypoints
@@ -147,6 +150,8 @@ def frame_outcome(
 def measure_pending(settings: Settings, dispatcher: RedisDispatcher, camera_id: str) -> str:
     """Answer the camera's pending frames with its current calibration, a chunk at a time; then nudge a solve.
 
+    Each chunk is first shown to the movement test (service.calibration.moves): when it finds that the camera
+    moved, the frames from the move on stay pending for the new epoch's calibration and the rest are measured.
     An uncalibrated camera leaves its frames pending: the first calibration asks for them to be measured, so they
     are answered then (recomputed, not dropped). After FRAMES_JOB_BUDGET_S this stops and queues its own re-run,
     so a camera with a backlog shares the workers with the others. Each chunk's results are committed with their
@@ -166,13 +171,22 @@ def measure_pending(settings: Settings, dispatcher: RedisDispatcher, camera_id: 
                 break
             frames = pending_frames(session, camera_id, limit=FRAMES_CHUNK)
             people = frames_points(session, [frame.id for frame in frames])
-        outcomes = [frame_outcome(frame, people.get(frame.id, []), camera, calibration) for frame in frames]
-        if outcomes:
-            client_ids = {frame.id: frame.client_frame_id for frame in frames}
-            outcomes, deliveries = store_outcomes(settings, camera, outcomes, client_ids)
+            stored_test = movement_state(session, camera_id) if frames else None
+        watched = moves.watch(calibration, stored_test, frames, people) if frames else None
+        moved_at = None if watched is None else watched.moved_at
+        measured = [frame for frame in frames if moved_at is None or frame.timestamp < moved_at]
+        outcomes = [frame_outcome(frame, people.get(frame.id, []), camera, calibration) for frame in measured]
+        if watched is not None:
+            client_ids = {frame.id: frame.client_frame_id for frame in measured}
+
+            keep_watch = partial(moves.keep_watch, camera=camera, calibration=calibration, watched=watched)
+            outcomes, deliveries = store_outcomes(settings, camera, outcomes, client_ids, keep_watch)
             announce(dispatcher, deliveries)
-        for frame, measured in zip(frames, outcomes, strict=True):
-            _log_measured(frame, measured)
+        for frame, answered in zip(measured, outcomes, strict=True):
+            _log_measured(frame, answered)
+        if moved_at is not None:
+            outcome = PENDING  # uncalibrated in the new epoch: its first solve has the frames measured
+            break
         if len(frames) < FRAMES_CHUNK:
             break
         if time.monotonic() > deadline:
@@ -186,19 +200,27 @@ def measure_pending(settings: Settings, dispatcher: RedisDispatcher, camera_id: 
 
 
 def store_outcomes(
-    settings: Settings, camera: Camera, outcomes: list[FrameOutcome], client_ids: dict[uuid.UUID, str | None]
+    settings: Settings,
+    camera: Camera,
+    outcomes: list[FrameOutcome],
+    client_ids: dict[uuid.UUID, str | None],
+    also: Callable[[Session], list[uuid.UUID]] | None = None,
 ) -> tuple[list[FrameOutcome], list[uuid.UUID]]:
     """Store a chunk's results with their violation events and webhook deliveries; (outcomes as stored, deliveries).
 
-    One transaction for the chunk. If it fails for any reason but an unavailable database, each frame is stored in
-    a transaction of its own, and a frame that fails alone is stored `failed` with the reason: one frame the store
-    cannot take must not hold back its neighbours (a chunk that always failed would fail every retry of the job,
-    and the camera's frames behind it would wait for ever).
+    One transaction for the chunk, which `also` joins (the movement test's state, or the move it found). If it fails
+    for any reason but an unavailable database, each frame is stored in a transaction of its own (and `also` in one
+    after them), and a frame that fails alone is stored `failed` with the reason: one frame the store cannot take
+    must not hold back its neighbours (a chunk that always failed would fail every retry of the job, and the
+    camera's frames behind it would wait for ever).
     """
     try:
         with transaction(settings) as session:
             record_frame_outcomes(session, outcomes)
-            return outcomes, violation_deliveries(session, camera, outcomes, settings, client_frame_ids=client_ids)
+            deliveries = []
+            if outcomes:
+                deliveries = violation_deliveries(session, camera, outcomes, settings, client_frame_ids=client_ids)
+            return outcomes, deliveries + (also(session) if also is not None else [])
     except Exception as exc:
         if isinstance(exc, SQLAlchemyError) and is_database_unavailable(exc):
             raise
@@ -218,6 +240,9 @@ def store_outcomes(
             with transaction(settings) as session:
                 record_frame_outcomes(session, [outcome])
         stored.append(outcome)
+    if also is not None:
+        with transaction(settings) as session:
+            deliveries += also(session)
     return stored, deliveries
 
 

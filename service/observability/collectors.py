@@ -12,7 +12,7 @@ import logging
 from collections.abc import Iterator, Sequence
 from typing import TYPE_CHECKING
 
-from prometheus_client.core import GaugeMetricFamily, Metric
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
 from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 
@@ -82,13 +82,25 @@ class SharedStateCollector:
             "When the current calibration was solved (Unix time); absent for an uncalibrated camera.",
             ["camera"],
         )
+        epoch = _gauge(
+            "posemetry_camera_calibration_epoch",
+            "The camera's calibration epoch: 1 for a new camera, +1 at every detected move, reset or image resize.",
+            ["camera"],
+        )
+        moves = CounterMetricFamily(
+            "posemetry_camera_moves",
+            "Moves of the camera (re-aimed, bumped, zoomed) that the movement test found; each opened a new epoch.",
+            labels=["camera"],
+        )
         for camera in cameras:
+            epoch.add_metric([camera.camera_id], float(camera.epoch))
+            moves.add_metric([camera.camera_id], float(camera.moves))
             calibrated.add_metric([camera.camera_id], 0.0 if camera.calibration_version is None else 1.0)
             evidence.add_metric([camera.camera_id], float(camera.usable_evidence))
             version.add_metric([camera.camera_id], float(camera.calibration_version or 0))
             if camera.calibrated_at is not None:
                 solved_at.add_metric([camera.camera_id], camera.calibrated_at.timestamp())
-        return [calibrated, evidence, version, solved_at]
+        return [calibrated, evidence, version, solved_at, epoch, moves]
 
     @staticmethod
     def _queue_jobs(depths: dict[tuple[str, str], int]) -> Metric:

@@ -21,6 +21,9 @@ Design choices that the rest of the service relies on:
   to keeping images (`cameras.keep_images`); the people found are observations like any posted keypoints.
 - Violation events carry `epoch_s`, whole seconds since the Unix epoch, so per-minute and per-hour counts are
   integer arithmetic that SQLite and PostgreSQL evaluate identically.
+- Calibration epochs: a camera's evidence and solves belong to an epoch (`cameras.epoch`, 1 for a new camera). A
+  detected move, a manual reset or a change of image size opens the next one: older people stay stored for audit
+  but no longer feed solves, and the sampling index starts with (camera_id, epoch) so a solve reads its own epoch's.
 - API keys store only a digest of their token (service.keys.tokens); a revoked key keeps its row, so listings
   and audits still show who had access, and when.
 """
@@ -103,6 +106,8 @@ KEYPOINTS_DTYPE = np.dtype("<f4")
 KEYPOINT_COUNT = 17
 _KEYPOINTS_STRUCT = struct.Struct(f"<{3 * KEYPOINT_COUNT}f")
 CALIBRATION_STATUSES = ("ok", "failed")
+# Why a camera's calibration epoch was opened (the first has no reason).
+EPOCH_REASONS = ("camera_moved", "reset", "image_size_changed")
 
 NAMING_CONVENTION = {
     "ix": "ix_%(table_name)s_%(column_0_N_name)s",
@@ -180,6 +185,13 @@ class Camera(Base):
     # Maintained on insert, so "is a solve due?" never has to count millions of rows.
     usable_evidence_count: Mapped[int] = mapped_column(BigInteger, default=0, server_default=text("0"))
     evidence_at_last_solve: Mapped[int] = mapped_column(BigInteger, default=0, server_default=text("0"))
+    # The calibration epoch new people join, why it was opened (EPOCH_REASONS; NULL for the first) and, after a
+    # detected move, the timestamp of the first frame judged to be from the new view.
+    epoch: Mapped[int] = mapped_column(Integer, default=1, server_default=text("1"))
+    epoch_reason: Mapped[str | None] = mapped_column(String(32))
+    moved_at: Mapped[datetime | None]
+    # Moves the movement test has detected over the camera's life (a counter for the metrics; resets not counted).
+    moves: Mapped[int] = mapped_column(Integer, default=0, server_default=text("0"))
     created_at: Mapped[datetime] = mapped_column(default=utc_now)
     updated_at: Mapped[datetime] = mapped_column(default=utc_now)
 
@@ -188,6 +200,8 @@ class Camera(Base):
         CheckConstraint("person_height_m > 0", name="person_height_positive"),
         CheckConstraint("distance_threshold_m > 0", name="distance_threshold_positive"),
         CheckConstraint("known_focal_px IS NULL OR known_focal_px > 0", name="known_focal_positive"),
+        CheckConstraint("epoch >= 1", name="epoch_positive"),
+        CheckConstraint(f"epoch_reason IS NULL OR epoch_reason IN {_in(EPOCH_REASONS)}", name="epoch_reason"),
     )
 
 
@@ -223,6 +237,8 @@ class Frame(Base):
         UniqueConstraint("camera_id", "client_frame_id"),
         # Pending work per camera (and across cameras when workers restart), oldest first.
         Index("ix_frames_status_camera_id_received_at", "status", "camera_id", "received_at"),
+        # A camera's frames by capture time, newest first, a page at a time (GET .../frames): the keyset's order.
+        Index("ix_frames_camera_id_timestamp_id", "camera_id", "timestamp", "id"),
         CheckConstraint(f"source IN {_in(FRAME_SOURCES)}", name="source"),
         CheckConstraint(f"status IN {_in(FRAME_STATUSES)}", name="status"),
         CheckConstraint("people >= 0", name="people_non_negative"),
@@ -252,6 +268,9 @@ class Observation(Base):
     usable: Mapped[bool] = mapped_column(Boolean)
     unusable_reason: Mapped[str | None] = mapped_column(String(REASON_MAX_LENGTH))
     cell: Mapped[int | None] = mapped_column(Integer)
+    # The camera's calibration epoch when the person was stored (or the new one, for a frame of a detected move's
+    # detection window): only the camera's current epoch feeds solves.
+    epoch: Mapped[int] = mapped_column(Integer, default=1, server_default=text("1"))
     # None until the calibration job keys the person (service.calibration.evidence.key_new_evidence).
     sample_key: Mapped[int | None] = mapped_column(Integer)
 
@@ -262,10 +281,11 @@ class Observation(Base):
         # appends to one page per camera, and keying finds them in order. Deleting or resetting a camera's
         # evidence, and the cascade from cameras, use it too.
         Index("ix_observations_camera_id_sample_key_id", "camera_id", "sample_key", "id"),
-        # The calibration sample: equality on (camera_id, usable, cell), then a range on sample_key.
+        # The calibration sample: equality on (camera_id, epoch, usable, cell), then a range on sample_key.
         Index(
-            "ix_observations_camera_id_usable_cell_sample_key",
+            "ix_observations_camera_id_epoch_usable_cell_sample_key",
             "camera_id",
+            "epoch",
             "usable",
             "cell",
             "sample_key",
@@ -352,6 +372,8 @@ class CalibrationVersion(Base):
     id: Mapped[int] = mapped_column(Integer, primary_key=True, autoincrement=True)
     camera_id: Mapped[str] = mapped_column(String(CAMERA_ID_MAX_LENGTH), ForeignKey("cameras.id", ondelete="CASCADE"))
     version: Mapped[int] = mapped_column(Integer)
+    # The calibration epoch whose evidence the solve used.
+    epoch: Mapped[int] = mapped_column(Integer, default=1, server_default=text("1"))
     status: Mapped[str] = mapped_column(String(16))
     reason: Mapped[str | None]
     fx_px: Mapped[float | None]
@@ -397,6 +419,24 @@ class CalibrationVersion(Base):
         ),
         CheckConstraint("version >= 1", name="version_positive"),
     )
+
+
+class MovementMonitor(Base):
+    """The movement test's state for a camera (service.calibration.movement), kept between measuring jobs.
+
+    It belongs to one epoch and one calibration version: a state of another is stale and starts again.
+    """
+
+    __tablename__ = "movement_monitors"
+
+    camera_id: Mapped[str] = mapped_column(
+        String(CAMERA_ID_MAX_LENGTH), ForeignKey("cameras.id", ondelete="CASCADE"), primary_key=True
+    )
+    epoch: Mapped[int] = mapped_column(Integer)
+    calibration_version: Mapped[int] = mapped_column(Integer)
+    state: Mapped[bytes] = mapped_column(LargeBinary)
+    statistic: Mapped[float]
+    updated_at: Mapped[datetime] = mapped_column(default=utc_now)
 
 
 class ViolationEvent(Base):

@@ -91,7 +91,10 @@ class CalibrationStatusChangedData(CalibrationData):
     """The camera went from uncalibrated to calibrated (its first current version) or back (a reset)."""
 
     previous_status: CameraStatus
-    reason: str = Field(description="What changed it: `calibrated`, `reset`, `image size changed`.")
+    reason: str = Field(
+        description="What changed it: `calibrated`, `reset`, `image size changed`, `camera_moved` (the movement "
+        "test found that the camera's view changed: a new calibration epoch starts)."
+    )
 
 
 class ViolationDetected(BaseModel):

@@ -10,6 +10,7 @@ from sqlalchemy import update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
+from service.calibration.evidence import key_new_evidence, sample_evidence
 from service.calibration.repository import (
     add_calibration,
     calibration_history,
@@ -113,7 +114,7 @@ def test_a_geometry_solution_round_trips_with_non_finite_values_as_null(session:
     assert stored.covariance[1][1] == pytest.approx(covariance[1, 1])
 
 
-def test_reset_makes_the_camera_uncalibrated_and_can_drop_evidence(session: Session) -> None:
+def test_reset_opens_a_new_epoch_that_keeps_old_people_stored_but_out_of_solves(session: Session) -> None:
     add_camera(session)
     populate_cells(session, {0: 30})
     add_calibration(session, "cam-1", ok_values(evidence_count=30), make_current=True)
@@ -122,12 +123,18 @@ def test_reset_makes_the_camera_uncalibrated_and_can_drop_evidence(session: Sess
     reset_calibration(session, "cam-1")
     session.commit()
     assert current_calibration(session, "cam-1") is None
-    assert len(calibration_history(session, "cam-1")) == 1
+    assert [v.epoch for v in calibration_history(session, "cam-1")] == [1]
     camera = get_camera(session, "cam-1")
     assert camera is not None and camera.evidence_at_last_solve == 0
-    assert evidence_count(session, "cam-1") == 30
+    assert (camera.epoch, camera.epoch_reason, camera.moved_at, camera.moves) == (2, "reset", None, 0)
+    assert camera.usable_evidence_count == 0
+    assert count(session, Observation, camera_id="cam-1", usable=True) == 30  # kept for audit
+    key_new_evidence(session, "cam-1", limit=100)
+    assert len(sample_evidence(session, "cam-1", cap=100)) == 0
+    assert len(sample_evidence(session, "cam-1", cap=100, epoch=1)) == 30
 
     reset_calibration(session, "cam-1", drop_evidence=True)
     session.commit()
     assert evidence_count(session, "cam-1") == 0
     assert count(session, Observation, camera_id="cam-1") == 0
+    assert get_camera(session, "cam-1").epoch == 3  # type: ignore[union-attr]

@@ -65,9 +65,11 @@ def test_force_resolve_and_queue_down(client: TestClient, camera: str, dispatche
     assert_problem(client.post("/v1/cameras/ghost/calibration"), 404, "no camera")
 
 
-def test_reset_keeps_or_drops_evidence(
+def test_reset_opens_a_new_epoch_and_can_drop_evidence(
     client: TestClient, camera: str, app: FastAPI, dispatcher: RecordingDispatcher
 ) -> None:
+    fresh = client.get(f"/v1/cameras/{camera}/calibration").json()
+    assert (fresh["epoch"], fresh["reason"], fresh["moved_at"]) == (1, None, None)
     client.post(f"/v1/cameras/{camera}/keypoints", json=frame_body(standing(MIN_PEOPLE)))
     with app.state.session_factory() as session:
         add_calibration(session, camera, solved(MIN_PEOPLE), make_current=True)
@@ -75,8 +77,13 @@ def test_reset_keeps_or_drops_evidence(
     dispatcher.calibrations.clear()
     reset = client.delete(f"/v1/cameras/{camera}/calibration")
     assert reset.status_code == 200
-    assert reset.json()["status"] == "calibrating" and reset.json()["evidence_count"] == MIN_PEOPLE
-    assert dispatcher.calibrations == [(camera, False)]
+    body = reset.json()
+    assert (body["status"], body["reason"], body["epoch"], body["evidence_count"]) == ("uncalibrated", "reset", 2, 0)
+    assert body["moved_at"] is None and body["people_needed"] == MIN_PEOPLE
+    assert dispatcher.calibrations == []  # the new epoch has no people yet
+    client.post(f"/v1/cameras/{camera}/keypoints", json=frame_body(standing(MIN_PEOPLE)))
+    assert client.get(f"/v1/cameras/{camera}/calibration").json()["evidence_count"] == MIN_PEOPLE
     dropped = client.delete(f"/v1/cameras/{camera}/calibration", params={"drop_evidence": "true"}).json()
-    assert dropped["status"] == "uncalibrated" and dropped["evidence_count"] == 0
-    assert len(client.get(f"/v1/cameras/{camera}/calibration/history").json()["items"]) == 1
+    assert (dropped["status"], dropped["evidence_count"], dropped["epoch"]) == ("uncalibrated", 0, 3)
+    history = client.get(f"/v1/cameras/{camera}/calibration/history").json()["items"]
+    assert [(item["version"], item["epoch"]) for item in history] == [(1, 1)]

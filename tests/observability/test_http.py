@@ -102,6 +102,8 @@ def test_calibration_state_and_evidence_per_camera(client: TestClient, camera: s
     assert metrics.value("posemetry_camera_calibration_version", camera="cam-2") == 0
     assert metrics.value("posemetry_camera_calibration_timestamp_seconds", camera="cam-2") is None
     assert metrics.value("posemetry_camera_usable_evidence", camera="cam-2") == 0  # no ankle: not evidence
+    assert metrics.value("posemetry_camera_calibration_epoch", camera=camera) == 1
+    assert metrics.value("posemetry_camera_moves_total", camera=camera) == 0
     assert metrics.value("posemetry_metrics_source_up", source="database") == 1
     assert metrics.value("posemetry_metrics_source_up", source="redis") is None  # no queue in this app
     client.delete("/v1/cameras/cam-2")

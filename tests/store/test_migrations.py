@@ -32,6 +32,7 @@ def schema_differences(connection: Connection) -> list[object]:
 pytestmark = pytest.mark.both_backends
 
 TABLES = {"cameras", "frames", "frame_images", "observations", "calibrations", "violation_events", "api_keys"}
+TABLES |= {"movement_monitors"}
 WEBHOOK_TABLES = {
     "webhook_subscriptions",
     "webhook_events",
