@@ -19,6 +19,7 @@ from service import __version__
 from service.calibration import routes as calibration
 from service.cameras import routes as cameras
 from service.cameras.cache import CameraCache
+from service.console import routes as console
 from service.dispatch import Dispatcher, NullDispatcher
 from service.distances import routes as distances
 from service.frames import routes as frames
@@ -67,9 +68,10 @@ AUTH_RESPONSES: dict[int | str, dict[str, object]] = {
     for status, text in AUTH_RESPONSE_DESCRIPTIONS.items()
 }
 # Each room's routes, in the order the OpenAPI document lists them. Routers anyone may call: liveness and readiness,
-# for load balancers and orchestrators that hold no key.
-PUBLIC_ROUTERS = (health,)
-ROUTERS = (cameras, frames, pictures, calibration, distances, violations, webhooks, keys, metrics, health)
+# for load balancers and orchestrators that hold no key, and the operator console's page, which holds no data (its
+# script reads the API with the operator's key).
+PUBLIC_ROUTERS = (health, console)
+ROUTERS = (cameras, frames, pictures, calibration, distances, violations, webhooks, keys, metrics, health, console)
 
 
 def create_app(

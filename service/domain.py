@@ -18,6 +18,18 @@ if TYPE_CHECKING:
 
 Point = tuple[float, float]
 METRES_PER_FOOT = 0.3048  # the international foot: thresholds and labels may be given in feet
+# Lengths converted between feet and metres are rounded to this many decimals (nanometres, or nano-feet): in binary
+# floating point 6 ft would otherwise be 1.8288000000000002 m, and that is what clients would read back.
+CONVERTED_DECIMALS = 9
+
+
+def feet_to_metres(feet: float) -> float:
+    return round(feet * METRES_PER_FOOT, CONVERTED_DECIMALS)
+
+
+def metres_to_feet(metres: float) -> float:
+    return round(metres / METRES_PER_FOOT, CONVERTED_DECIMALS)
+
 
 # What a job did, as the jobs return it (RQ keeps it in its logs; tests assert on it).
 DONE = "done"

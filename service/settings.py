@@ -59,6 +59,13 @@ class Settings(BaseSettings):
         "revoke the other keys (`/v1/keys`). Unset: `posemetry serve` generates a first admin key, stores it hashed "
         "and prints it once; `posemetry keys create --admin` makes another. Change it by restarting with a new value.",
     )
+    console_refresh_s: float = Field(
+        default=15.0,
+        ge=1.0,
+        le=3600.0,
+        description="How often the operator console (`/console`) reads the API again to refresh what it shows, in "
+        "seconds. Each refresh costs a few requests per camera on view.",
+    )
     api_key_cache_ttl_s: float = Field(
         default=10.0,
         ge=0.0,

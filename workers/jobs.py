@@ -53,7 +53,16 @@ def preload_pose(settings: Settings) -> None:
     try:
         estimator = load_pose_estimator(settings)
     except ModelFilesError as exc:
-        log.error("pose models unavailable, image frames will fail until they are installed: %s", exc)
+        if set(exc.problems.values()) == {"missing"}:
+            # None installed: a keypoint-only deployment, which is normal; say it once, quietly.
+            log.info(
+                "no pose models in %s: keypoint frames are unaffected; image frames will fail until the models are "
+                "installed (posemetry models fetch --dir %s)",
+                exc.model_dir,
+                exc.model_dir,
+            )
+        else:
+            log.error("pose models unavailable, image frames will fail until they are installed: %s", exc)
         return
     log.info("pose estimator %s loaded", estimator.name)
 

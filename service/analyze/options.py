@@ -8,7 +8,7 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Literal, get_args
 
-from service.domain import METRES_PER_FOOT
+from service.domain import feet_to_metres
 from service.geometry import DEFAULT_HEIGHT_M
 from service.pose.model_files import POSE_MODELS
 
@@ -32,7 +32,7 @@ class Threshold:
 
     @property
     def metres(self) -> float:
-        return self.value * METRES_PER_FOOT if self.unit == "ft" else self.value
+        return feet_to_metres(self.value) if self.unit == "ft" else self.value
 
     def __str__(self) -> str:
         return f"{self.value:g} {self.unit}"

@@ -131,10 +131,10 @@ class PictureWriter:
             return
         options = self.analysis.options
         pictures = FramePictures.of(result, frame.people, self.analysis.calibration, options.unit)
-        overlay, topdown = pictures.overlay(image), pictures.topdown(view=self.view)
-        for picture in (overlay, topdown):
-            height, width = picture.shape[:2]
-            label(picture, _caption(frame, result), (0, 0), Style.for_size(width, height), align="topleft")
+        caption = _caption(frame, result)
+        overlay, topdown = pictures.overlay(image), pictures.topdown(view=self.view, title=caption)
+        height, width = overlay.shape[:2]
+        label(overlay, caption, (0, 0), Style.for_size(width, height), align="topleft")
         if self.images:
             name = f"{picture_stem(frame)}.{options.image_format}"
             (self.out_dir / OVERLAY_DIR / name).write_bytes(_encode(overlay, options.image_format))

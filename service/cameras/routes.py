@@ -9,7 +9,7 @@ from fastapi import APIRouter, Query, Request, Response, status
 from service.cameras import repository
 from service.cameras.schemas import CameraList, CameraOut, CameraSettings
 from service.cameras.service import apply_settings, require_camera
-from service.domain import METRES_PER_FOOT
+from service.domain import CONVERTED_DECIMALS, metres_to_feet
 from service.http.dependencies import CameraIdPath, DispatcherDep, ReadSessionDep, SessionDep, nudge_best_effort
 from service.http.links import camera_url
 from service.keys.dependencies import PrincipalDep
@@ -26,8 +26,9 @@ def camera_out(camera: Camera) -> CameraOut:
         image_height_px=camera.image_height_px,
         person_height_m=camera.person_height_m,
         equal_focal=camera.equal_focal,
-        distance_threshold_m=camera.distance_threshold_m,
-        distance_threshold_ft=camera.distance_threshold_m / METRES_PER_FOOT,
+        # Rounded on the way out too: cameras stored before conversions were rounded hold 1.8288000000000002.
+        distance_threshold_m=round(camera.distance_threshold_m, CONVERTED_DECIMALS),
+        distance_threshold_ft=metres_to_feet(camera.distance_threshold_m),
         known_focal_px=camera.known_focal_px,
         keep_images=camera.keep_images,
         usable_evidence_count=camera.usable_evidence_count,

@@ -7,7 +7,7 @@ from typing import Literal
 
 from pydantic import BaseModel, Field, StrictBool
 
-from service.domain import METRES_PER_FOOT
+from service.domain import feet_to_metres
 from service.geometry import DEFAULT_HEIGHT_M
 from service.http.schemas import Integer, Number, StrictModel
 
@@ -25,7 +25,7 @@ class DistanceThreshold(StrictModel):
 
     @property
     def metres(self) -> float:
-        return self.value * METRES_PER_FOOT if self.unit == "ft" else self.value
+        return feet_to_metres(self.value) if self.unit == "ft" else self.value
 
 
 DEFAULT_DISTANCE_THRESHOLD = DistanceThreshold(value=6, unit="ft")

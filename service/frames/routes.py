@@ -9,16 +9,25 @@ from collections.abc import Sequence
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, Path, Query, Request, Response, status
+from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import State
 
 from service.cameras.repository import CameraNotFoundError, CameraResizedError
 from service.cameras.service import camera_not_found, require_camera
 from service.dispatch import UNAVAILABLE_ERRORS, Dispatcher
-from service.frames import ingest, repository
+from service.frames import ingest, listing, repository
 from service.frames.digests import image_frame_digest
 from service.frames.images import ImageError, ImageTooLargeError, decode
-from service.frames.schemas import DetectedPersonOut, FrameAccepted, FrameOut, KeypointFrame
+from service.frames.schemas import (
+    DetectedPersonOut,
+    FrameAccepted,
+    FrameList,
+    FrameOut,
+    FrameStatus,
+    FrameSummary,
+    KeypointFrame,
+)
 from service.frames.service import people_for_camera
 from service.frames.uploads import OPENAPI_REQUEST_BODY, UPLOAD_TYPES, Upload, read_upload
 from service.frames.writer import FrameNotStorableError, FrameWriter
@@ -282,15 +291,19 @@ def _accepted(frame: Frame, created: bool, url: str, response: Response) -> Fram
 # --------------------------------------------------------------------------------------------------- reading
 
 
+def _links(url: str, image_kept: bool) -> dict[str, str]:
+    links = {"topdown": f"{url}/topdown.png"}
+    if image_kept:
+        links["overlay"] = f"{url}/overlay.png"
+    return links
+
+
 def frame_json(
     frame: Frame, result_json: str | None, detections: list[DetectedPersonOut] | None, image_kept: bool
 ) -> str:
     """The frame as FrameOut's JSON, with its result spliced in as stored (the worker wrote it in FrameResult's
     shape): validating and re-encoding 190 pairs per poll cost three times as much as the rest of the answer."""
-    url = frame_url(frame.camera_id, frame.id)
-    links = {"topdown": f"{url}/topdown.png"}
-    if image_kept:
-        links["overlay"] = f"{url}/overlay.png"
+    links = _links(frame_url(frame.camera_id, frame.id), image_kept)
     envelope = FrameOut(
         frame_id=frame.id,
         camera_id=frame.camera_id,
@@ -312,13 +325,103 @@ def frame_json(
     return f'{envelope[:-1]},"result":{result_json or "null"}}}'
 
 
+@router.get("/{camera_id}/frames", response_model=FrameList)
+def list_frames(
+    camera_id: CameraIdPath,
+    session: ReadSessionDep,
+    status_: Annotated[FrameStatus | None, Query(alias="status", description="Only frames in this state.")] = None,
+    since: Annotated[
+        TimestampText | None, Query(description="Only frames taken at or after this time (the frame's timestamp).")
+    ] = None,
+    until: Annotated[TimestampText | None, Query(description="Only frames taken before this time.")] = None,
+    limit: Annotated[int, Query(ge=1, le=1000, description="Frames per page.")] = 50,
+    before: Annotated[
+        str | None,
+        Query(min_length=1, max_length=200, description="The previous page's `next_before` (an opaque cursor)."),
+    ] = None,
+) -> FrameList:
+    """The camera's frames, newest first by capture time, a page at a time, optionally of one status and within
+    [since, until). Each item is a summary; its `url` has the people, distances and violations."""
+    require_camera(session, camera_id)
+    if since is not None and until is not None and since >= until:
+        raise ProblemError(
+            422, "invalid-window", f"`since` ({since.isoformat()}) must be before `until` ({until.isoformat()})."
+        )
+    try:
+        position = None if before is None else listing.FramePosition.decode(before)
+    except listing.BadCursorError:
+        raise ProblemError(
+            400, "bad-cursor", "`before` is not a cursor this API handed out: pass a page's `next_before` as it is."
+        ) from None
+    page = listing.list_frames(
+        session, camera_id, limit=limit, before=position, status=status_, since=since, until=until
+    )
+    items = [_summary(listed) for listed in page]
+    next_before = None
+    if len(page) == limit:
+        last = page[-1].frame
+        next_before = listing.FramePosition(last.timestamp, last.id).encode()
+    return FrameList(items=items, next_before=next_before)
+
+
+def _summary(listed: listing.ListedFrame) -> FrameSummary:
+    frame = listed.frame
+    url = frame_url(frame.camera_id, frame.id)
+    return FrameSummary(
+        frame_id=frame.id,
+        camera_id=frame.camera_id,
+        client_frame_id=frame.client_frame_id,
+        source=frame.source,  # type: ignore[arg-type]
+        timestamp=frame.timestamp,
+        received_at=frame.received_at,
+        status=frame.status,  # type: ignore[arg-type]
+        people=frame.people,
+        violations=listed.violations,
+        calibration_version=frame.calibration_version,
+        processed_at=frame.processed_at,
+        error=frame.error,
+        image_kept=listed.image_kept,
+        url=url,
+        links=_links(url, listed.image_kept),
+    )
+
+
+@router.get("/{camera_id}/frames/by-client-id/{client_frame_id}", response_model=FrameOut)
+def get_frame_by_client_id(
+    camera_id: CameraIdPath,
+    client_frame_id: Annotated[
+        str, Path(pattern=CLIENT_FRAME_ID_PATTERN, description="The `frame_id` the client posted the frame with.")
+    ],
+    session: ReadSessionDep,
+) -> Response:
+    """The frame the client posted with its own `frame_id`: the same answer as `GET .../frames/{frame_id}` (whose
+    path takes only the service's UUIDs, so the two can never be confused)."""
+    frame_id = listing.frame_id_by_client_id(session, camera_id, client_frame_id)
+    if frame_id is None:
+        require_camera(session, camera_id)
+        raise ProblemError(
+            404, "frame-not-found", f"Camera {camera_id!r} has no frame posted with frame_id {client_frame_id!r}."
+        )
+    return _frame_response(session, camera_id, frame_id)
+
+
 @router.get("/{camera_id}/frames/{frame_id}", response_model=FrameOut)
 def get_frame(
     camera_id: CameraIdPath,
-    frame_id: Annotated[uuid.UUID, Path(description="The frame id returned by the keypoints POST.")],
+    frame_id: Annotated[
+        uuid.UUID,
+        Path(
+            description="The frame id (a UUID) the service answered the POST with. For the client's own `frame_id`, "
+            "use `GET .../frames/by-client-id/{client_frame_id}`."
+        ),
+    ],
     session: ReadSessionDep,
 ) -> Response:
     """A frame's status and, once measured, its people's positions, pair distances and violations."""
+    return _frame_response(session, camera_id, frame_id)
+
+
+def _frame_response(session: Session, camera_id: str, frame_id: uuid.UUID) -> Response:
     found = repository.get_frame_with_encoded_result(session, camera_id, frame_id)
     if found is None:
         require_camera(session, camera_id)

@@ -173,3 +173,31 @@ class FrameOut(BaseModel):
     processed_at: datetime | None
     error: str | None
     result: FrameResult | None
+
+
+class FrameSummary(BaseModel):
+    """A frame in a list: its state and counts, without the people and pairs (`url` has those)."""
+
+    frame_id: uuid.UUID
+    camera_id: str
+    client_frame_id: str | None
+    source: Literal["keypoints", "image"]
+    timestamp: datetime
+    received_at: datetime
+    status: FrameStatus
+    people: int
+    violations: int | None = Field(description="Pairs closer than the threshold, once measured (null before).")
+    calibration_version: int | None
+    processed_at: datetime | None
+    error: str | None
+    image_kept: bool
+    url: str
+    links: dict[str, str] = Field(description="Related resources: overlay and top-down pictures.")
+
+
+class FrameList(BaseModel):
+    """One page of a camera's frames, newest first (by `timestamp`, then id); pass `next_before` as `before` for
+    the next page (null: last page)."""
+
+    items: list[FrameSummary]
+    next_before: str | None

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from datetime import datetime
+from datetime import UTC, datetime
 from typing import Literal
 
 import numpy as np
@@ -66,10 +66,18 @@ def topdown_png(stored: StoredFrame, *, unit: Unit = "m", size_px: int = 800) ->
         raise ValueError("the frame has not been measured yet")
     camera = stored.camera
     calibration = calibration_from_version(stored.calibration, (camera.image_width_px, camera.image_height_px))
-    return encode_png(FramePictures.of(result, stored.people, calibration, unit).topdown(size_px=size_px))
+    pictures = FramePictures.of(result, stored.people, calibration, unit)
+    return encode_png(pictures.topdown(size_px=size_px, title=picture_title(camera.id, stored.frame.timestamp)))
+
+
+def picture_title(camera_id: str, timestamp: datetime | None = None) -> str:
+    """'camera lobby   2026-11-22 10:00:00 UTC': what a picture shows, so a saved copy still says it."""
+    when = "" if timestamp is None else f"   {timestamp.astimezone(UTC):%Y-%m-%d %H:%M:%S} UTC"
+    return f"camera {camera_id}{when}"
 
 
 def heatmap_png(
+    camera_id: str,
     violations: Sequence[ViolationPoint],
     *,
     since: datetime,
@@ -78,4 +86,5 @@ def heatmap_png(
     size_px: int = 800,
 ) -> bytes:
     """Where and when a camera's violations happened in a window: ground density above, counts per bucket below."""
-    return encode_png(render_heatmap(violations, start=since, end=until, bucket=bucket, size_px=size_px))
+    title = picture_title(camera_id)
+    return encode_png(render_heatmap(violations, start=since, end=until, bucket=bucket, size_px=size_px, title=title))

@@ -14,6 +14,9 @@ from rich.table import Table
 
 models_app = typer.Typer(help="Pose-model files: verify them, or download and convert them.", no_args_is_help=True)
 
+# Wide enough for any row of `models check` (a corrupt file's status names both checksums' starts).
+PIPE_WIDTH = 400
+
 DirOption = Annotated[
     Path | None,
     typer.Option(
@@ -51,6 +54,10 @@ def check(directory: DirOption = None) -> None:
         status = "[green]ok[/green]" if problem is None else f"[red]{problem}[/red]"
         table.add_row(spec.key, spec.file_name, f"{spec.size_bytes:,}", spec.licence, status)
     console = Console()
+    if not console.is_terminal:
+        # Piped or redirected, rich assumes 80 columns and cuts cells short ("detect…", "25,052…"): a log or a grep
+        # needs every name, size and checksum whole, so the table takes the width it needs.
+        console = Console(width=PIPE_WIDTH)
     console.print(table)
     if bad:
         console.print(f"{bad} file(s) need attention: run `{FETCH_COMMAND.format(dir=model_dir)}`", soft_wrap=True)

@@ -59,8 +59,8 @@ class FramePictures:
             unit=self.unit,
         )
 
-    def topdown(self, *, size_px: int = 800, view: TopDownView | None = None) -> np.ndarray:
-        """A map of where the frame's people stand, `size_px` square or in the given view."""
+    def topdown(self, *, size_px: int = 800, view: TopDownView | None = None, title: str | None = None) -> np.ndarray:
+        """A map of where the frame's people stand, `size_px` square or in the given view, headed by `title`."""
         return render_topdown(
             self.marks,
             self.result.pairs,
@@ -70,4 +70,5 @@ class FramePictures:
             view=view,
             grid_m=grid_cell_m(self.unit),
             unit=self.unit,
+            title=title,
         )

@@ -23,7 +23,8 @@ from service.geometry.calibration import Calibration
 from service.geometry.frame import FloatArray
 
 from .ground import GroundFrame
-from .style import DARK, GREY, WHITE, Style, label, text_height
+from .labels import Box
+from .style import DARK, GREY, WHITE, Style, label, label_size, text_height
 from .topdown import BACKGROUND, TopDownView, draw_ground_grid, draw_scale_bar, fit_view
 
 COLORMAP = cv2.COLORMAP_INFERNO
@@ -32,6 +33,7 @@ BUCKETS_S = {"minute": 60, "hour": 3600, "day": 86400}
 _FADE_IN = 0.08
 # Density rasters keep at least this many pixels per sigma (see density_map).
 _MIN_SIGMA_PX = 6
+GREY_TEXT = (200, 200, 200)
 
 
 @dataclass(frozen=True)
@@ -168,14 +170,46 @@ def _bucket_name(bucket_s: int) -> str:
     return f"{bucket_s} s"
 
 
+# Tick spacings the time axis chooses from (seconds): the finest that leaves room for every label.
+_TICK_STEPS_S = (60, 300, 600, 900, 1800, 3600, 7200, 10800, 21600, 43200, 86400, 172800, 604800, 2419200)
+
+
+def tick_text(t: datetime, step_s: int, previous: datetime | None) -> str:
+    """'14:00', or with the date where the day changes ('25 Nov 00:00'); whole days as '25 Nov'."""
+    if step_s >= 86400:
+        return t.strftime("%d %b")
+    return t.strftime("%H:%M" if previous is not None and previous.date() == t.date() else "%d %b %H:%M")
+
+
+def time_ticks(start: datetime, end: datetime, width_px: int, label_px: int) -> tuple[int, list[datetime]]:
+    """(step in s, tick instants in (start, end)): UTC-aligned multiples of the finest step whose ticks stay at least
+    one and a half label widths apart on a `width_px` axis."""
+    t0, t1 = _epoch(start), _epoch(end)
+    span = max(t1 - t0, 1.0)
+    step = next((s for s in _TICK_STEPS_S if span / s * 1.5 * label_px <= width_px), _TICK_STEPS_S[-1])
+    first = math.floor(t0 / step) * step + step
+    count = max(0, math.ceil((t1 - first) / step))
+    return step, [datetime.fromtimestamp(first + k * step, UTC) for k in range(count)]
+
+
 def draw_time_strip(
-    image: np.ndarray, starts: Sequence[datetime], counts: Sequence[int], bucket_s: int, style: Style
+    image: np.ndarray,
+    starts: Sequence[datetime],
+    counts: Sequence[int],
+    bucket_s: int,
+    style: Style,
+    *,
+    end: datetime | None = None,
+    title: str | None = None,
 ) -> None:
-    """Bars of counts per bucket across the strip (in place), with the window's ends and the peak count."""
+    """Bars of counts per bucket across the strip (in place): a header with the title, the total and the peak; below
+    the bars a time axis with the window's ends dated in full and ticks between them (dated where the day changes),
+    so a day-long window never reads like an hour. `end` is the window's end (default: the last bucket's)."""
     h, w = image.shape[:2]
     image[...] = DARK
-    top = style.pad_px * 2 + cv2.getTextSize("0", cv2.FONT_HERSHEY_SIMPLEX, style.font_scale, 1)[0][1] * 2
-    bottom = h - top
+    line_h = text_height(style)
+    top = line_h + style.pad_px
+    bottom = h - line_h - style.pad_px
     n = len(counts)
     peak = max(max(counts, default=0), 1)
     for k, c in enumerate(counts):
@@ -186,14 +220,32 @@ def draw_time_strip(
         y0 = bottom - round((bottom - top) * c / peak)
         cv2.rectangle(image, (x0, y0), (x1, bottom), (60, 140, 250), -1)
     cv2.line(image, (0, bottom), (w - 1, bottom), GREY, 1)
-    fmt = "%H:%M" if bucket_s < 86400 else "%Y-%m-%d"
-    unit = _bucket_name(bucket_s)
-    if starts:
-        label(image, starts[0].strftime(fmt), (0, h), style, align="bottomleft")
-        end = datetime.fromtimestamp(starts[-1].timestamp() + bucket_s, UTC).strftime(fmt + " UTC")
-        (tw, _), _ = cv2.getTextSize(end, cv2.FONT_HERSHEY_SIMPLEX, style.font_scale, style.font_thickness)
-        label(image, end, (w - tw - 2 * style.pad_px, h), style, align="bottomleft")
-    label(image, f"max {max(counts, default=0)} per {unit}", (0, 0), style, align="topleft")
+    total = sum(counts)
+    header = f"{total} violation{'s' * (total != 1)}, max {max(counts, default=0)} per {_bucket_name(bucket_s)}"
+    label(image, f"{title}   {header}" if title else header, (0, 0), style, align="topleft")
+    if not starts:
+        return
+    first = starts[0]
+    last = end or datetime.fromtimestamp(starts[-1].timestamp() + bucket_s, UTC)
+    t0, t1 = _epoch(first), _epoch(last)
+    date_format = "%Y-%m-%d %H:%M" if bucket_s < 86400 else "%Y-%m-%d"
+    ends = [
+        label(image, first.strftime(date_format), (0, h), style, align="bottomleft"),
+        label(image, last.strftime(date_format) + " UTC", (w, h), style, align="bottomright"),
+    ]
+    taken = [Box(*box) for box in ends]
+    step, ticks = time_ticks(first, last, w, label_size("25 Nov 00:00", style)[0])
+    previous = first  # the start's label is dated: a tick on its day needs only the time
+    for t in ticks:
+        x = (t.timestamp() - t0) / max(t1 - t0, 1e-9) * (w - 1)
+        cv2.line(image, (round(x), bottom), (round(x), bottom + style.pad_px), GREY, 1)
+        text = tick_text(t, step, previous)
+        size = label_size(text, style)
+        box = Box(round(x - size[0] / 2), h - size[1], round(x - size[0] / 2) + size[0] - 1, h - 1)
+        if box.x0 >= 0 and box.x1 < w and not any(box.intersects(other, style.pad_px) for other in taken):
+            label(image, text, (box.x0, box.y0), style, color=GREY_TEXT, align="topleft")
+            taken.append(box)
+            previous = t
 
 
 def render_heatmap(
@@ -208,8 +260,10 @@ def render_heatmap(
     background: np.ndarray | None = None,
     calibration: Calibration | None = None,
     grid_m: float = 1.0,
+    title: str | None = None,
 ) -> np.ndarray:
-    """The heat map picture (BGR): density of violations on the ground above, counts per time bucket below.
+    """The heat map picture (BGR): density of violations on the ground above, counts per time bucket below, on a
+    dated time axis; `title` (the camera) heads the strip. A window without violations says so on the map.
 
     Window: [start, end), by default from the first to just past the last violation; events outside it are
     ignored. `bucket`: "minute", "hour", "day" or a width in seconds. Background of the map:
@@ -237,10 +291,12 @@ def render_heatmap(
 
     h, w = panel.shape[:2]
     style = Style.for_size(w, max(h, 480))
-    strip_h = max(round(0.22 * h), 72)
+    strip_h = max(round(0.22 * h), 3 * text_height(style) + 24)
     strip = np.zeros((strip_h, w, 3), dtype=np.uint8)
     starts, counts = bucket_counts([v.timestamp for v in violations], start, end, bucket_s)
-    draw_time_strip(strip, starts, counts, bucket_s, style)
+    draw_time_strip(strip, starts, counts, bucket_s, style, end=end, title=title)
+    if len(points) == 0:
+        label(panel, "no violations in this window", (w / 2, h / 2), style)
     return np.vstack((panel, strip))
 
 
@@ -261,7 +317,8 @@ def _on_top_down(
     _blend(image, *colorize(density, peak))
     if background is None:
         draw_scale_bar(image, view, style)
-    _legend(image, style, peak)
+    if peak > 0:
+        _legend(image, style, peak)
     return image
 
 
@@ -296,5 +353,6 @@ def _on_camera_frame(frame_bgr: np.ndarray, calibration: Calibration, points: Fl
     )
     peak = float(density.max())
     _blend(image, *colorize(sampled, peak))
-    _legend(image, style, peak)
+    if peak > 0:
+        _legend(image, style, peak)
     return image

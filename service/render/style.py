@@ -84,8 +84,8 @@ def label(
     `anchor` is the box centre for align="center", else the box corner named by align: "topleft",
     "bottomleft", "topright" or "bottomright".
     """
-    (tw, th), baseline = cv2.getTextSize(text, FONT, style.font_scale, style.font_thickness)
-    bw, bh = tw + 2 * style.pad_px, th + baseline + 2 * style.pad_px
+    (_, th), _ = cv2.getTextSize(text, FONT, style.font_scale, style.font_thickness)
+    bw, bh = label_size(text, style)
     ax, ay = anchor
     if align == "center":
         x0, y0 = ax - bw / 2, ay - bh / 2
@@ -99,6 +99,12 @@ def label(
     origin = (x0 + style.pad_px, y0 + style.pad_px + th)
     cv2.putText(image, text, origin, FONT, style.font_scale, color, style.font_thickness, cv2.LINE_AA)
     return x0, y0, x0 + bw - 1, y0 + bh - 1
+
+
+def label_size(text: str, style: Style) -> tuple[int, int]:
+    """(width, height) in pixels of the box `label` draws for `text`."""
+    (tw, th), baseline = cv2.getTextSize(text, FONT, style.font_scale, style.font_thickness)
+    return tw + 2 * style.pad_px, th + baseline + 2 * style.pad_px
 
 
 def text_height(style: Style) -> int:

@@ -19,8 +19,22 @@ from service.geometry.calibration import Calibration
 from service.geometry.frame import FloatArray
 
 from .ground import GroundFrame
+from .labels import Box, box_at, place_labels
 from .overlay import PairLike, PersonMark, violators
-from .style import GREEN, LIGHT_RED, RED, SHIFT, WHITE, Style, fixed, format_distance, label, line, text_height
+from .style import (
+    GREEN,
+    LIGHT_RED,
+    RED,
+    SHIFT,
+    WHITE,
+    Style,
+    fixed,
+    format_distance,
+    label,
+    label_size,
+    line,
+    text_height,
+)
 
 BACKGROUND = (38, 34, 30)
 GRID = (70, 66, 62)
@@ -109,17 +123,31 @@ def draw_ground_grid(image: np.ndarray, view: TopDownView, style: Style, grid_m:
             line(image, px[0], px[1], GRID_MAJOR if major else GRID, style.thin_px)
 
 
+def scale_bar_box(view: TopDownView, style: Style) -> Box:
+    """The box the scale bar and its label cover (draw_scale_bar draws exactly this)."""
+    length_m, length_px, x0, y, tick = _scale_bar(view, style)
+    w, h = label_size(f"{length_m:g} m", style)
+    right = round(x0 + length_px + style.pad_px) + w
+    return Box(0, round(min(y + style.pad_px - h, y - tick)) - style.pad_px, right + style.pad_px, view.height_px - 1)
+
+
+def _scale_bar(view: TopDownView, style: Style) -> tuple[float, float, int, int, int]:
+    length_m = nice_step(view.width_px * view.metres_per_px / 5)
+    return (
+        length_m,
+        length_m / view.metres_per_px,
+        2 * style.pad_px + 4,
+        view.height_px - 2 * style.pad_px - 4,
+        2 * style.marker_px,
+    )
+
+
 def draw_scale_bar(image: np.ndarray, view: TopDownView, style: Style) -> None:
     """A 1-2-5 metre bar about a fifth of the map wide, bottom left, labelled."""
-    length_m = nice_step(view.width_px * view.metres_per_px / 5)
-    length_px = length_m / view.metres_per_px
-    x0 = 2 * style.pad_px + 4
-    y = view.height_px - 2 * style.pad_px - 4
-    tick = 2 * style.marker_px
+    length_m, length_px, x0, y, tick = _scale_bar(view, style)
     pts = np.array([[x0, y - tick], [x0, y], [x0 + length_px, y], [x0 + length_px, y - tick]])
     cv2.polylines(image, [fixed(pts).reshape(-1, 1, 2)], False, WHITE, style.line_px, cv2.LINE_AA, SHIFT)
-    text = f"{length_m:g} m"
-    label(image, text, (x0 + length_px + style.pad_px, y + style.pad_px), style, align="bottomleft")
+    label(image, f"{length_m:g} m", (x0 + length_px + style.pad_px, y + style.pad_px), style, align="bottomleft")
 
 
 def fov_edges(poly: FloatArray) -> list[FloatArray]:
@@ -171,19 +199,22 @@ def render_topdown(
     grid_m: float = 1.0,
     threshold_circles: bool = True,
     unit: str = "m",
+    title: str | None = None,
 ) -> np.ndarray:
     """The map as a BGR image: grid and scale bar, camera and its view (given a calibration), people as dots
-    (red when in a pair under the threshold), those pairs as labelled red lines, and optionally a circle of
-    radius threshold/2 around each person (two circles overlap exactly when the pair is under the threshold).
+    (red when in a pair under the threshold), those pairs as red lines labelled with their distance, and
+    optionally a circle of radius threshold/2 around each person (two circles overlap exactly when the pair is
+    under the threshold). `title` (camera, time) heads the map, with a note of what it could not show.
 
     `view` fixes the mapping (e.g. to keep successive frames aligned); by default it fits the people and,
-    with a calibration, the camera's foot.
+    with a calibration, the camera's foot. People outside the view are drawn as arrows at the edge, pointing to
+    where they stand. Distance labels never overlap each other or the title and scale bar (service.render.labels):
+    the closest pairs are labelled first, and a label with no free spot is left out and counted in the note.
     """
-    placed = {p.index: np.array(p.ground_m, dtype=float) for p in people if p.ground_m is not None}
-    placed = {i: g for i, g in placed.items() if np.all(np.isfinite(g))}
     if view is None:
-        points = list(placed.values()) + ([np.zeros(2)] if calibration is not None else [])
-        view = fit_view(np.array(points).reshape(-1, 2), size_px)
+        grounds = [p.ground_m for p in people if p.ground_m is not None and np.all(np.isfinite(p.ground_m))]
+        points = list(grounds) + ([(0.0, 0.0)] if calibration is not None else [])
+        view = fit_view(np.array(points, dtype=float).reshape(-1, 2), size_px)
     image = np.empty((view.height_px, view.width_px, 3), dtype=np.uint8)
     image[...] = BACKGROUND
     style = Style.for_size(view.width_px, view.height_px)
@@ -191,30 +222,149 @@ def render_topdown(
     if calibration is not None:
         draw_camera(image, view, style, calibration)
 
+    layout = topdown_layout(people, pairs, threshold_m, view, style, unit)
     red = violators(pairs, threshold_m)
+    colour = {i: RED if i in red else GREEN for i in layout.pixels}
     if threshold_circles:
-        radius_px = threshold_m / 2 / view.metres_per_px
-        for i, g in placed.items():
-            c = view.to_pixels(g)
-            cv2.circle(
-                image, _pt(c), int(np.rint(radius_px * (1 << SHIFT))), RED if i in red else GREEN, 1, cv2.LINE_AA, SHIFT
-            )
-    close = [
-        p for p in pairs if p.distance_m is not None and p.distance_m < threshold_m and p.i in placed and p.j in placed
-    ]
-    for p in close:
-        line(image, view.to_pixels(placed[p.i]), view.to_pixels(placed[p.j]), RED, style.line_px)
-    for p in close:
-        # Above the pair's midpoint rather than on it: two close people's dots would hide under their own label.
-        mid = view.to_pixels((placed[p.i] + placed[p.j]) / 2) - (0.0, text_height(style) / 2 + 1.5 * style.marker_px)
-        label(image, format_distance(p.distance_m, unit), (float(mid[0]), float(mid[1])), style, color=LIGHT_RED)  # type: ignore[arg-type]
-    # Dots last: a label may overlap a neighbour's dot, never hide it.
-    for i, g in placed.items():
-        cv2.circle(
-            image, _pt(view.to_pixels(g)), style.marker_px << SHIFT, RED if i in red else GREEN, -1, cv2.LINE_AA, SHIFT
-        )
+        radius = int(np.rint(threshold_m / 2 / view.metres_per_px * (1 << SHIFT)))
+        for i in layout.on_map:
+            cv2.circle(image, _pt(layout.pixels[i]), radius, colour[i], 1, cv2.LINE_AA, SHIFT)
+    for p in layout.close:
+        line(image, layout.pixels[p.i], layout.pixels[p.j], RED, style.line_px)
     draw_scale_bar(image, view, style)
+    _draw_distance_labels(image, style, layout.labels)
+    # Dots last: labels keep clear of them, so nothing hides a person.
+    for i in layout.on_map:
+        cv2.circle(image, _pt(layout.pixels[i]), style.marker_px << SHIFT, colour[i], -1, cv2.LINE_AA, SHIFT)
+    for i in layout.off_map:
+        _edge_arrow(image, layout.area, layout.pixels[i], style, colour[i])
+    if title:
+        label(image, title, (0, 0), style, align="topleft")
+    hidden = sum(found.box is None for found in layout.labels)
+    notes = [f"{len(layout.off_map)} off map"] if layout.off_map else []
+    if hidden:
+        notes.append(f"{hidden} label{'s' * (hidden != 1)} hidden: crowded")
+    if notes:
+        label(image, ", ".join(notes), (view.width_px, view.height_px), style, align="bottomright")
     return image
+
+
+@dataclass(frozen=True)
+class TopDownLayout:
+    """Where everything of a map goes, before anything is drawn."""
+
+    pixels: dict[int, FloatArray]
+    """Each placed person's map pixel (off-map people's lie outside `area`)."""
+    area: Box
+    """Where people are drawn: the map less an inset at the edges and the title line."""
+    on_map: list[int]
+    off_map: list[int]
+    close: list[PairLike]
+    """The pairs under the threshold with both people placed, closest first."""
+    reserved: list[Box]
+    """What labels keep clear of: the title line, the note line, the scale bar, every on-map person's dot."""
+    labels: list[DistanceLabel]
+
+
+def topdown_layout(
+    people: Sequence[PersonMark],
+    pairs: Sequence[PairLike],
+    threshold_m: float,
+    view: TopDownView,
+    style: Style,
+    unit: str = "m",
+) -> TopDownLayout:
+    placed = {p.index: np.array(p.ground_m, dtype=float) for p in people if p.ground_m is not None}
+    pixels = {i: view.to_pixels(g) for i, g in placed.items() if np.all(np.isfinite(g))}
+    inset = 2 * style.marker_px + style.pad_px
+    title_band = _title_band(view, style)
+    area = Box(inset, title_band.y1 + inset, view.width_px - 1 - inset, view.height_px - 1 - inset)
+    on_map = sorted(i for i, c in pixels.items() if area.x0 <= c[0] <= area.x1 and area.y0 <= c[1] <= area.y1)
+    close = [p for p in pairs if p.distance_m is not None and p.distance_m < threshold_m]
+    close = sorted((p for p in close if p.i in pixels and p.j in pixels), key=lambda p: float(p.distance_m or 0.0))
+    dots = [box_at((float(pixels[i][0]), float(pixels[i][1])), (2 * style.marker_px + 1,) * 2) for i in on_map]
+    reserved = [title_band, _note_band(view, style), scale_bar_box(view, style), *dots]
+    labels = distance_labels(view, style, close, pixels, reserved, unit)
+    off_map = sorted(set(pixels) - set(on_map))
+    return TopDownLayout(pixels, area, on_map, off_map, close, reserved, labels)
+
+
+def _title_band(view: TopDownView, style: Style) -> Box:
+    """The top line, kept free for the title (camera, time)."""
+    return Box(0, 0, view.width_px - 1, text_height(style))
+
+
+def _note_band(view: TopDownView, style: Style) -> Box:
+    """The bottom line right of the scale bar, kept free for the note of what the map leaves out (known only once
+    the labels are placed)."""
+    return Box(view.width_px // 3, view.height_px - 1 - text_height(style), view.width_px - 1, view.height_px - 1)
+
+
+@dataclass(frozen=True)
+class DistanceLabel:
+    """A close pair's label: its text, the point of the pair's line it belongs to, and its box (None: left out)."""
+
+    text: str
+    anchor_px: tuple[float, float]
+    box: Box | None
+
+
+def distance_labels(
+    view: TopDownView,
+    style: Style,
+    close: Sequence[PairLike],
+    pixels: dict[int, FloatArray],
+    reserved: Sequence[Box],
+    unit: str = "m",
+) -> list[DistanceLabel]:
+    """Where the close pairs' labels go (closest pair first), by labels.place_labels: above the visible part of the
+    pair's line (two close people's dots would hide under a label on the midpoint) or, when crowded, nearby (drawn
+    with a thin leader line); never over each other or a `reserved` box."""
+    texts = [format_distance(float(p.distance_m or 0.0), unit) for p in close]
+    anchors = []
+    for p in close:
+        a, b = _clipped(pixels[p.i], pixels[p.j], view)
+        anchors.append((float(a[0] + b[0]) / 2, float(a[1] + b[1]) / 2))
+    lift = text_height(style) / 2 + 1.5 * style.marker_px
+    bounds = Box(0, 0, view.width_px - 1, view.height_px - 1)
+    sizes = [label_size(text, style) for text in texts]
+    boxes = place_labels(sizes, [(x, y - lift) for x, y in anchors], bounds, reserved)
+    return [DistanceLabel(*found) for found in zip(texts, anchors, boxes, strict=True)]
+
+
+def _draw_distance_labels(image: np.ndarray, style: Style, labels: Sequence[DistanceLabel]) -> None:
+    lift = text_height(style) / 2 + 1.5 * style.marker_px
+    for found in labels:
+        if found.box is not None and math.dist(found.box.centre, (found.anchor_px[0], found.anchor_px[1] - lift)) > 1:
+            line(image, np.array(found.anchor_px), np.array(found.box.centre), LIGHT_RED, 1)
+    for found in labels:
+        if found.box is not None:
+            label(image, found.text, (found.box.x0, found.box.y0), style, color=LIGHT_RED, align="topleft")
+
+
+def _clipped(a: FloatArray, b: FloatArray, view: TopDownView) -> tuple[FloatArray, FloatArray]:
+    """The part of segment ab inside the map (the whole segment when it is all inside, or none is)."""
+    inside, p, q = cv2.clipLine((0, 0, view.width_px, view.height_px), _int(a), _int(b))
+    return (np.array(p, float), np.array(q, float)) if inside else (a, b)
+
+
+def _int(p: FloatArray) -> tuple[int, int]:
+    q = np.clip(np.rint(p), -(1 << 20), 1 << 20)
+    return int(q[0]), int(q[1])
+
+
+def _edge_arrow(image: np.ndarray, area: Box, target: FloatArray, style: Style, colour: tuple[int, int, int]) -> None:
+    """An arrowhead on the edge of the map's area, on the line from its centre towards a person beyond it."""
+    centre = np.array(area.centre)
+    direction = target - centre
+    half = np.array([(area.x1 - area.x0) / 2, (area.y1 - area.y0) / 2])
+    tip = centre + direction * min(float(np.min(half / np.maximum(np.abs(direction), 1e-9))), 1.0)
+    unit = direction / max(float(np.linalg.norm(direction)), 1e-9)
+    normal = np.array([-unit[1], unit[0]])
+    r = 2.0 * style.marker_px
+    arrow = fixed(np.array([tip, tip - unit * r * 1.6 + normal * r * 0.8, tip - unit * r * 1.6 - normal * r * 0.8]))
+    cv2.fillPoly(image, [arrow.reshape(-1, 1, 2)], colour, cv2.LINE_AA, SHIFT)
+    cv2.polylines(image, [arrow.reshape(-1, 1, 2)], True, WHITE, 1, cv2.LINE_AA, SHIFT)
 
 
 def _pt(p: FloatArray) -> tuple[int, int]:

@@ -237,6 +237,8 @@ class Frame(Base):
         UniqueConstraint("camera_id", "client_frame_id"),
         # Pending work per camera (and across cameras when workers restart), oldest first.
         Index("ix_frames_status_camera_id_received_at", "status", "camera_id", "received_at"),
+        # A camera's frames by capture time, newest first, a page at a time (GET .../frames): the keyset's order.
+        Index("ix_frames_camera_id_timestamp_id", "camera_id", "timestamp", "id"),
         CheckConstraint(f"source IN {_in(FRAME_SOURCES)}", name="source"),
         CheckConstraint(f"status IN {_in(FRAME_STATUSES)}", name="status"),
         CheckConstraint("people >= 0", name="people_non_negative"),

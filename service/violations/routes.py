@@ -103,5 +103,5 @@ def get_violation_heatmap(
     places = repository.violation_places(session, camera_id, since=since, until=until, limit=HEATMAP_MAX_EVENTS)
     session.rollback()
     points = [ViolationPoint.between(p.timestamp, p.ground_i_m, p.ground_j_m) for p in places]
-    png = heatmap_png(points, since=since, until=until, bucket=bucket, size_px=size_px)
+    png = heatmap_png(camera_id, points, since=since, until=until, bucket=bucket, size_px=size_px)
     return Response(png, media_type="image/png")

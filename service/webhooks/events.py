@@ -17,7 +17,7 @@ from datetime import datetime, timedelta
 from sqlalchemy.orm import Session
 
 from service.dispatch import UNAVAILABLE_ERRORS, Dispatcher
-from service.domain import FrameOutcome
+from service.domain import FrameOutcome, metres_to_feet
 from service.http.links import frame_url
 from service.settings import Settings
 from service.store.models import CalibrationVersion, Camera, utc_now
@@ -127,7 +127,7 @@ def violation_deliveries(
                 ),
                 calibration_version=outcome.calibration_version or 0,
                 distance_threshold_m=threshold_m,
-                distance_threshold_ft=feet(threshold_m),  # type: ignore[arg-type]
+                distance_threshold_ft=metres_to_feet(threshold_m),
                 violation_count=len(outcome.violations),
                 pairs=pairs,
                 cooldown_s=window_s,

@@ -8,6 +8,7 @@ from fastapi.testclient import TestClient
 
 from service.cameras.repository import delete_camera
 from service.geometry import DEFAULT_HEIGHT_M
+from service.store.models import Camera
 from tests.support.app import CAMERA, assert_problem, frame_body, standing
 from tests.support.dispatch import RecordingDispatcher
 
@@ -36,6 +37,28 @@ def test_threshold_in_metres_or_feet(client: TestClient, threshold: dict[str, ob
     camera = client.put("/v1/cameras/c", json=body).json()
     assert camera["distance_threshold_m"] == pytest.approx(metres)
     assert camera["known_focal_px"] == 500
+
+
+@pytest.mark.parametrize("feet", [6, 5, 3.5, 10, 13.1])
+def test_thresholds_in_feet_read_back_as_written(client: TestClient, feet: float) -> None:
+    """6 ft is 1.8288 m, not the 1.8288000000000002 that binary floating point makes of 6 x 0.3048."""
+    body = {"image_width_px": 640, "image_height_px": 480, "distance_threshold": {"value": feet, "unit": "ft"}}
+    response = client.put("/v1/cameras/c", json=body)
+    camera = response.json()
+    assert camera["distance_threshold_ft"] == feet
+    assert camera["distance_threshold_m"] == float(f"{feet * 0.3048:.9f}")
+    assert len(repr(camera["distance_threshold_m"])) <= 12, response.text
+
+
+def test_a_threshold_stored_unrounded_reads_back_rounded(client: TestClient, app: FastAPI) -> None:
+    """Cameras stored before conversions were rounded hold 6 x 0.3048 as it came out."""
+    client.put("/v1/cameras/old", json={"image_width_px": 640, "image_height_px": 480})
+    with app.state.session_factory() as session:
+        session.get(Camera, "old").distance_threshold_m = 6 * 0.3048  # type: ignore[union-attr]
+        session.commit()
+    app.state.camera_cache.forget("old")
+    text = client.get("/v1/cameras/old").text
+    assert '"distance_threshold_m":1.8288,' in text and '"distance_threshold_ft":6.0,' in text, text
 
 
 def test_list_get_delete(client: TestClient) -> None:

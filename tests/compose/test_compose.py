@@ -34,7 +34,7 @@ from tests.compose.stack import (
 )
 from tests.support.app import coco_person
 from tests.support.serving import free_port
-from tests.support.shared import SHARED_MODELS, TOWN_CENTRE, model_dir_path, require_dir
+from tests.support.shared import TOWN_CENTRE, model_dir_path, require_dir
 
 PROJECT = "posemetry-compose-test"
 FRAMES = 12  # keypoint frames of PEOPLE people: 120 people, four solves (at 30, 45, 68 and 102)
@@ -69,7 +69,7 @@ def test_the_compose_stack_measures_scales_and_loses_nothing_to_a_killed_worker_
     require_docker()
     models = require_dir(model_dir_path(), "pose model")
     town_frames = sorted(require_dir(TOWN_CENTRE / "frames", "Town Centre frames").glob("*.jpg"))[:IMAGES]
-    street_jpeg = (SHARED_MODELS / "test_towncentre_street.jpg").read_bytes()
+    street_jpeg = (models / "test_towncentre_street.jpg").read_bytes()
     phases = Phases()
     stack: Stack | None = None
     try:

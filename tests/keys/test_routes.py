@@ -25,8 +25,10 @@ from tests.support.app import ADMIN_KEY, CAMERA, HEIGHT_PX, WIDTH_PX, assert_pro
 from tests.support.dispatch import RecordingDispatcher
 
 BOTH = pytest.mark.parametrize("backend", ["sqlite", "postgresql"])
-# Anyone may call these: health checks for load balancers, and the API's documentation (no data in it).
+# Anyone may call these: health checks for load balancers, the API's documentation and the operator console's page,
+# script and style sheet (no data in any of them: the console's script reads the API with the operator's key).
 PUBLIC_PATHS = {"/healthz", "/readyz", "/docs", "/docs/oauth2-redirect", "/redoc", "/openapi.json"}
+PUBLIC_PATHS |= {"/console", "/console/{name}"}
 SAMPLE_PATH_VALUES = {"camera_id": CAMERA, "frame_id": str(uuid.UUID(int=1)), "key_id": "0123456789ab"}
 CAMERA_SETTINGS = {"image_width_px": WIDTH_PX, "image_height_px": HEIGHT_PX}
 

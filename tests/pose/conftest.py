@@ -1,8 +1,9 @@
 """Pose-pipeline fixtures: the real model files and the Oxford Town Centre frames, one estimator per session.
 
 The model directory comes from POSEMETRY_MODEL_DIR (what the service reads too), defaulting to the checkout's
-sibling `../shared/models`; data from `../shared/data`. Tests that need them skip, naming the missing directory,
-only when the directory is absent; a directory that is present but holds bad files fails loudly instead.
+sibling `../shared/models`; data from POSEMETRY_TEST_DATA_DIR, defaulting to `../shared/data` (tests.support.shared).
+Tests that need them skip, naming the missing directory, only when the directory is absent; a directory that is
+present but holds bad files fails loudly instead.
 Building an estimator costs ~0.5 s, so each model's estimator is shared by the whole session.
 """
 
@@ -35,7 +36,9 @@ def model_dir() -> Path:
 @pytest.fixture(scope="session")
 def town_dir() -> Path:
     if not TOWN.is_dir():
-        pytest.skip(f"Oxford Town Centre data directory {TOWN} is absent (../shared/data/oxford_town_centre)")
+        pytest.skip(
+            f"Oxford Town Centre data directory {TOWN} is absent (set POSEMETRY_TEST_DATA_DIR or ../shared/data)"
+        )
     return TOWN
 
 

@@ -20,9 +20,10 @@ from service.render.png import encode_png
 from service.render.topdown import fit_view, render_topdown
 from tests.render.oxford import oxford_calibration, oxford_people, undistort_frame
 from tests.render.scenes import calibration_of, people_of, result_of, tilted_scene
+from tests.support.shared import TOWN_CENTRE
 
 THRESHOLD_M = SIX_FEET_M
-SHARED = Path(__file__).resolve().parents[3] / "shared" / "data" / "oxford_town_centre"
+SHARED = TOWN_CENTRE
 
 
 Spot = tuple[tuple[float, float], float]

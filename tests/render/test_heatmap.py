@@ -9,7 +9,15 @@ import numpy as np
 import pytest
 
 from service.render.ground import GroundFrame
-from service.render.heatmap import COLORMAP, ViolationPoint, bucket_counts, density_map, render_heatmap
+from service.render.heatmap import (
+    COLORMAP,
+    ViolationPoint,
+    bucket_counts,
+    density_map,
+    render_heatmap,
+    tick_text,
+    time_ticks,
+)
 from service.render.topdown import TopDownView, render_topdown
 from tests.render.scenes import calibration_of, tilted_scene
 
@@ -128,3 +136,40 @@ def test_wide_kernels_on_large_maps_match_the_direct_density():
     d2 = np.sum((ground[..., None, :] - points) ** 2, axis=-1)
     direct = np.sum(np.exp(-d2 / (2 * 0.8**2)), axis=-1) / (2 * np.pi * 0.8**2)
     np.testing.assert_allclose(coarse[y, x], direct, atol=0.01 * direct.max())
+
+
+def test_the_time_axis_is_dated() -> None:
+    """A day-long window must not read like an hour: its ends carry dates, ticks mark the hours between, dated where
+    the day changes."""
+    start, end = datetime(2026, 11, 23, 23, 0, tzinfo=UTC), datetime(2026, 11, 24, 23, 0, tzinfo=UTC)
+    step, ticks = time_ticks(start, end, 800, 130)
+    assert step in (6 * 3600, 12 * 3600) and ticks[0] == datetime(2026, 11, 24, 0, 0, tzinfo=UTC)
+    assert all(start < t < end for t in ticks) and all(t.timestamp() % step == 0 for t in ticks)
+    hour_step, hour_ticks = time_ticks(start, start + timedelta(hours=1), 800, 130)
+    assert hour_step == 900 and len(hour_ticks) == 3  # 23:15, 23:30, 23:45
+    assert tick_text(ticks[0], step, None) == "24 Nov 00:00"
+    assert tick_text(ticks[0] + timedelta(hours=6), step, ticks[0]) == "06:00"
+    assert tick_text(datetime(2026, 11, 25, tzinfo=UTC), 86400, None) == "25 Nov"
+
+
+def test_a_day_and_an_hour_draw_different_axes() -> None:
+    """Before, both windows ended in '23:00 ... 23:00 UTC' labels that differed in nothing."""
+    end = datetime(2026, 11, 24, 23, 0, tzinfo=UTC)
+    points = [ViolationPoint(end - timedelta(minutes=30), (0.0, 5.0))]
+    day = render_heatmap(points, start=end - timedelta(days=1), end=end, bucket="hour", size_px=600)
+    hour = render_heatmap(points, start=end - timedelta(hours=1), end=end, bucket="hour", size_px=600)
+    axis = slice(-30, None)
+    assert np.any(day[axis] != hour[axis])
+
+
+def test_an_empty_window_says_so() -> None:
+    end = datetime(2026, 11, 24, 23, 0, tzinfo=UTC)
+    empty = render_heatmap([], start=end - timedelta(days=1), end=end, bucket="hour", size_px=400)
+    one = render_heatmap(
+        [ViolationPoint(end - timedelta(hours=2), (0.0, 0.0))], start=end - timedelta(days=1), end=end, bucket="hour",
+        size_px=400, view=TopDownView(400, 400, (20.0, 20.0), 0.05),
+    )  # fmt: skip
+    # The message in the middle of the map: light text on the dark label box.
+    middle = empty[180:220, 100:300]
+    assert (middle.max(axis=2) > 200).sum() > 100
+    assert (one[180:220, 100:300].max(axis=2) > 200).sum() == 0

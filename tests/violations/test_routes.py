@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import uuid
+from datetime import UTC, datetime, timedelta
 
+import cv2
+import numpy as np
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
@@ -56,3 +59,37 @@ def test_violation_query_errors(client: TestClient, camera: str) -> None:
     )
     assert_problem(client.get(url, params={"since": "2000-01-01T00:00:00Z"}), 422, "narrow it")
     assert_problem(client.get("/v1/cameras/ghost/violations"), 404, "no camera")
+
+
+def test_frames_posted_now_as_readme_does_fill_the_default_windows(
+    client: TestClient, app: FastAPI, camera: str
+) -> None:
+    """README's examples post frames taken now (`date -u`) and read the counts and the heat map without a window: the
+    defaults (the last hour of minutes, the last day of hours) must show them. Frames of another day must not be in
+    them, and the picture then says the window is empty."""
+    now = datetime.now(UTC).replace(microsecond=0)
+    _calibrated_frames(
+        client, app, camera, [(now - timedelta(minutes=2)).isoformat(), (now - timedelta(days=3)).isoformat()]
+    )
+    assert client.get(f"/v1/cameras/{camera}/violations").json()["total"] == 1
+    assert client.get(f"/v1/cameras/{camera}/violations?bucket=hour").json()["total"] == 1
+    url = f"/v1/cameras/{camera}/violations/heatmap.png"
+    shown = decode(client.get(url, params={"bucket": "hour", "size_px": 400}).content)
+    old_day = {"since": (now - timedelta(days=3, hours=1)).isoformat(), "until": (now - timedelta(days=2)).isoformat()}
+    other = decode(client.get(url, params={**old_day, "bucket": "hour", "size_px": 400}).content)
+    empty = {"since": (now - timedelta(days=10)).isoformat(), "until": (now - timedelta(days=9)).isoformat()}
+    nothing = decode(client.get(url, params={**empty, "bucket": "hour", "size_px": 400}).content)
+    # The density's hot colours appear where there was a violation, and not in an empty window.
+    assert hot_pixels(shown) > 50 and hot_pixels(other) > 50 and hot_pixels(nothing) == 0
+
+
+def decode(png: bytes) -> np.ndarray:
+    image = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+    assert image is not None
+    return image
+
+
+def hot_pixels(image: np.ndarray) -> int:
+    """Pixels of the map (not the strip) in the colour map's bright yellow-orange, which nothing else uses."""
+    b, g, r = (image[:400, :, k].astype(int) for k in range(3))
+    return int(((r > 200) & (g > 120) & (b < 120)).sum())
