@@ -247,20 +247,28 @@ def bench_pose(
     frames: Path | None = typer.Option(
         None, help="Folder of frames (default: the Oxford Town Centre clip frames in ../shared/data)."
     ),
-    models: str = typer.Option("thunder,lightning", help="Pose models to time, comma-separated."),
-    repeats: int = typer.Option(2, min=1, help="Passes over the frames per model and crop mode."),
+    models: str = typer.Option("lightning,auto,thunder", help="Pose models to time, comma-separated."),
+    plans: str = typer.Option("uncalibrated,calibrated", help="Detector plans to time, comma-separated."),
+    repeats: int = typer.Option(2, min=1, help="Passes over the frames per configuration."),
     threads: int | None = typer.Option(None, min=1, help="Inference threads (default: every core)."),
+    markdown: Path | None = typer.Option(None, help="Also write the report to this Markdown file."),
 ) -> None:
-    """Pose throughput per frame: detector and pose split, Thunder and Lightning, concurrent crops vs a plain loop."""
-    from bench.pose import pose_lines, run_pose_benchmark
+    """Pose cost per frame: detector / tiling / pose split (CPU and wall), per pose model and detector plan."""
+    from bench.pose import PLANS, pose_lines, run_pose_benchmark
+    from service.pose.model_files import POSE_CHOICES
     from service.settings import get_settings
 
     settings = get_settings()
     frames_dir = frames or Path(__file__).resolve().parents[1].parent / "shared/data/oxford_town_centre/frames"
     chosen = [name.strip() for name in models.split(",") if name.strip()]
-    unknown = sorted(set(chosen) - {"thunder", "lightning"})
+    unknown = sorted(set(chosen) - set(POSE_CHOICES))
     if unknown:
-        raise typer.BadParameter(f"unknown {', '.join(unknown)}; choose thunder, lightning", param_hint="--models")
+        raise typer.BadParameter(
+            f"unknown {', '.join(unknown)}; choose {', '.join(POSE_CHOICES)}", param_hint="--models"
+        )
+    chosen_plans = [name.strip() for name in plans.split(",") if name.strip()]
+    if not chosen_plans or set(chosen_plans) - set(PLANS):
+        raise typer.BadParameter(f"choose from {', '.join(PLANS)}", param_hint="--plans")
     log = Console(stderr=True)
     result = run_pose_benchmark(
         Path(settings.model_dir).expanduser(),
@@ -268,11 +276,53 @@ def bench_pose(
         chosen,  # type: ignore[arg-type]
         repeats,
         lambda message: log.print(f"[dim]{message}[/dim]", highlight=False),
+        plans=chosen_plans,
         threads=threads or settings.inference_threads,
         detector_input_px=settings.detector_input_px,
     )
-    typer.echo(f"posemetry pose benchmark ({os.cpu_count()} CPUs, Python {sys.version.split()[0]})")
-    typer.echo("\n".join(pose_lines(result)))
+    lines = [f"posemetry pose benchmark ({os.cpu_count()} CPUs, Python {sys.version.split()[0]})", *pose_lines(result)]
+    typer.echo("\n".join(lines))
+    if markdown is not None:
+        markdown.write_text("```\n" + "\n".join(lines) + "\n```\n")
+
+
+@bench_app.command("recall")
+def bench_recall(
+    policies: str = typer.Option(
+        "plain,uncalibrated,calibrated", help="Detector policies to compare, comma-separated (bench/recall.py)."
+    ),
+    atrium_calibration: Path | None = typer.Option(
+        None, help="A calibration.json (from `posemetry analyze`) to run the calibrated policy on the atrium too."
+    ),
+    threads: int | None = typer.Option(None, min=1, help="Inference threads (default: every core)."),
+    markdown: Path | None = typer.Option(None, help="Also write the report to this Markdown file."),
+) -> None:
+    """Detection recall by person size on Town Centre, and against the atrium annotation, per detector policy."""
+    from bench.recall import POLICIES, recall_lines, run_recall_benchmark
+    from service.settings import get_settings
+
+    chosen = [name.strip() for name in policies.split(",") if name.strip()]
+    unknown = sorted(set(chosen) - set(POLICIES))
+    if unknown:
+        raise typer.BadParameter(
+            f"unknown {', '.join(unknown)}; choose from {', '.join(POLICIES)}", param_hint="--policies"
+        )
+    shared = Path(__file__).resolve().parents[1].parent / "shared/data"
+    log = Console(stderr=True)
+    result = run_recall_benchmark(
+        Path(get_settings().model_dir).expanduser(),
+        shared / "oxford_town_centre",
+        shared / "mot3d_atrium/frames",
+        Path(__file__).resolve().parents[1] / "tests/pose/data/atrium_annotations.json",
+        chosen,
+        lambda message: log.print(f"[dim]{message}[/dim]", highlight=False),
+        atrium_calibration=atrium_calibration,
+        threads=threads or get_settings().inference_threads,
+    )
+    lines = recall_lines(result)
+    typer.echo("\n".join(lines))
+    if markdown is not None:
+        markdown.write_text("```\n" + "\n".join(lines) + "\n```\n")
 
 
 @bench_app.command("movement")

@@ -126,7 +126,7 @@ class Target:
 
 
 def _default_shared(*parts: str) -> Path:
-    return Path(__file__).resolve().parents[2].parent.joinpath("shared", *parts)
+    return Path(__file__).resolve().parents[1].parent.joinpath("shared", *parts)
 
 
 def default_model_dir() -> Path:
@@ -154,11 +154,11 @@ def read_images(options: LoadOptions) -> list[bytes]:
 
 
 def check_models(options: LoadOptions) -> Path:
-    from service.pose.model_files import resolve_models
+    from service.pose.model_files import resolve_choice
     from service.settings import get_settings
 
     model_dir = options.model_dir or default_model_dir()
-    resolve_models(model_dir, get_settings().pose_model)  # ModelFilesError names every missing or bad file
+    resolve_choice(model_dir, get_settings().pose_model)  # ModelFilesError names every missing or bad file
     return model_dir
 
 

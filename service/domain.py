@@ -63,6 +63,8 @@ class StoredCentres(Protocol):
     shoulder_y_px: float | None
     ankle_x_px: float | None
     ankle_y_px: float | None
+    unusable_reason: str | None
+    """Why the person is not calibration evidence (None: they are); measuring reads the posture from it."""
 
 
 def centres(person: PersonIn | StoredCentres) -> tuple[Point | None, Point | None]:

@@ -57,10 +57,10 @@ FRAMES_QUEUE = "frames"
 CALIBRATION_QUEUE = "calibration"
 POSE_QUEUE = "pose"
 WEBHOOKS_QUEUE = "webhooks"
-# A worker takes the first queue with work. Webhooks first: an alert is what the user waits for, and a delivery is
-# one short HTTP request; behind the frames queue (never empty while cameras post faster than the workers measure)
-# alerts waited up to a minute under `posemetry bench load`. Then measuring (cheap, latency-bound); pose and solves
-# are slow and wait for a free moment.
+# A worker takes webhooks first: an alert is what the user waits for, and a delivery is one short HTTP request;
+# behind the frames queue (never empty while cameras post faster than the workers measure) alerts waited up to a
+# minute under `posemetry bench load`. The other queues share the worker's time (workers.main._SharesTime): served
+# in this order, pose and solves starved behind measuring.
 QUEUES = (WEBHOOKS_QUEUE, FRAMES_QUEUE, POSE_QUEUE, CALIBRATION_QUEUE)
 
 # Jobs are named by dotted path: the service must not import the workers package (it pulls in the geometry).

@@ -134,6 +134,14 @@ class Settings(BaseSettings):
         description="Most observations one calibration solves on: a spatially balanced sample of the stored "
         "evidence, so a solve stays fast with millions of people stored and is not dominated by one crowded spot.",
     )
+    static_after_s: float = Field(
+        default=900.0,
+        gt=0,
+        le=30 * 86400,
+        description="Seconds (of frame time) a detected person may stay exactly where they are before the spot is "
+        "taken for a mannequin, poster or statue: people found there then give no calibration evidence and raise "
+        "no violation, and the camera lists the spot (`GET /v1/cameras/{id}/static-spots`).",
+    )
 
     migrations_dir: Path | None = Field(
         default=None,
@@ -146,10 +154,11 @@ class Settings(BaseSettings):
         "against its pinned sha256 when loaded. `posemetry models fetch --dir DIR` fills it and `posemetry models "
         "check --dir DIR` verifies it; tests and CI point it at the repository's sibling `../shared/models`.",
     )
-    pose_model: Literal["thunder", "lightning"] = Field(
-        default="thunder",
-        description="Per-person pose model: `thunder` (MoveNet Thunder, 256 px crops, more accurate) or "
-        "`lightning` (MoveNet Lightning, 192 px crops, about 3x faster per person, less reliable ankles).",
+    pose_model: Literal["thunder", "lightning", "auto"] = Field(
+        default="auto",
+        description="Per-person pose model: `auto` (each person by size: Thunder for crops of 384 px and more, "
+        "which Lightning would have to halve, Lightning for the rest), `thunder` (MoveNet Thunder, 256 px crops, "
+        "for everyone) or `lightning` (MoveNet Lightning, 192 px crops, about 4x less CPU per person).",
     )
     detector_input_px: int = Field(
         default=640,

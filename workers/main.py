@@ -23,6 +23,7 @@ import os
 import shutil
 import sys
 import tempfile
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import timedelta
@@ -31,6 +32,7 @@ from typing import Any
 
 import redis
 from rq import Queue
+from rq.job import Job
 from sqlalchemy.exc import SQLAlchemyError
 
 from service.calibration.service import calibration_due
@@ -41,6 +43,8 @@ from service.observability.logs import LOG_FORMATS, configure_logging
 from service.observability.multiprocess import ENV as METRICS_DIR_ENV
 from service.observability.multiprocess import multiprocess_dir
 from service.queue import (
+    CALIBRATION_QUEUE,
+    FRAMES_QUEUE,
     JOB_HEARTBEAT_S,
     POSE_QUEUE,
     QUEUES,
@@ -193,11 +197,62 @@ class _Recovers:
             log.warning("maintenance skipped, Redis unavailable: %s", exc)
 
 
-class RecoveringSimpleWorker(_Recovers, ProvesLiveness, InstrumentedSimpleWorker):
+# Shares of a busy worker's time (webhooks always come first). Measuring gets half: it is what keypoint cameras
+# wait for and a frames job measures all its camera's pending frames, so it keeps up with fewer turns. The memory is
+# short: a burst (the seed images of a new camera) must not leave its queue behind the others for long.
+QUEUE_SHARES: dict[str, float] = {FRAMES_QUEUE: 2.0, POSE_QUEUE: 1.0, CALIBRATION_QUEUE: 1.0}
+SHARE_HALF_LIFE_S = 10.0
+
+
+class _SharesTime:
+    """Webhooks first; the other queues share the worker's time by QUEUE_SHARES, so none starves another.
+
+    RQ's default serves its queues in strict order, and under load the frames queue is never empty (cameras post
+    faster than one worker measures, so there is always a camera with pending frames): image frames waited 37 s
+    (p50) for pose and 50 solves were still queued at the end of `posemetry bench load`. Here the worker keeps the
+    time its jobs took per queue (decaying with SHARE_HALF_LIFE_S) and, before each dequeue, orders the queues by
+    time used per share: the queue furthest behind its share is served first when it has work, and a queue with
+    none leaves its share to the others. Time, not turns, because a solve or a pose job takes ten times a frames
+    job. Webhooks keep their place at the front: an alert is what users wait for, and a delivery is one short HTTP
+    request.
+    """
+
+    _ordered_queues: list[Queue]
+    clock = staticmethod(time.monotonic)
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.used_s: dict[str, float] = dict.fromkeys(QUEUE_SHARES, 0.0)
+        self._decayed_at = self.clock()
+
+    def execute_job(self, job: Job, queue: Queue) -> None:
+        started = self.clock()
+        try:
+            super().execute_job(job, queue)  # type: ignore[misc]
+        finally:
+            if queue.name in self.used_s:
+                self.used_s[queue.name] += self.clock() - started
+            self._share_order()
+
+    def _share_order(self) -> None:
+        now = self.clock()
+        decay = 0.5 ** ((now - self._decayed_at) / SHARE_HALF_LIFE_S)
+        self._decayed_at = now
+        for name in self.used_s:
+            self.used_s[name] *= decay
+
+        def behind(queue: Queue) -> tuple[bool, float]:
+            share = QUEUE_SHARES.get(queue.name)
+            return queue.name != WEBHOOKS_QUEUE, 0.0 if share is None else self.used_s[queue.name] / share
+
+        self._ordered_queues = sorted(self._ordered_queues, key=behind)  # stable: ties keep their order
+
+
+class RecoveringSimpleWorker(_SharesTime, _Recovers, ProvesLiveness, InstrumentedSimpleWorker):
     """Jobs in the worker process, measured (workers.instrumented) and kept alive (workers.liveness)."""
 
 
-class RecoveringWorker(_Recovers, ProvesLiveness, InstrumentedWorker):
+class RecoveringWorker(_SharesTime, _Recovers, ProvesLiveness, InstrumentedWorker):
     """A forked child per job, measured (workers.instrumented) and kept alive (workers.liveness)."""
 
 
@@ -221,7 +276,8 @@ def run_worker(
     fork: bool = False,
     name: str | None = None,
 ) -> Requeued:
-    """Re-enqueue pending work, then serve `queues` (in priority order) until stopped (or drained, if burst).
+    """Re-enqueue pending work, then serve `queues` (webhooks first, the others by their share of the worker's
+    time) until stopped (or drained, if burst).
 
     Without `fork`, jobs run in the worker process itself (rq's SimpleWorker): a frame job takes milliseconds,
     and forking a child per job would cost more than the job. `fork` isolates each job in a child process (a

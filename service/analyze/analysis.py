@@ -20,7 +20,7 @@ from .options import AnalyzeOptions
 from .records import CalibrationRole
 from .sources import FrameSource, SkippedFrame
 
-Stage = Literal["pose", "calibration", "results"]
+Stage = Literal["pose", "guided", "calibration", "results"]
 
 
 class Observer(Protocol):

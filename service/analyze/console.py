@@ -31,8 +31,18 @@ from .run import run_analysis
 
 # Piped output is not cut at 80 columns (the summary's paths and figures would wrap mid-cell).
 _PIPED_WIDTH = 160
-_DESCRIPTIONS: dict[Stage, str] = {"pose": "pose", "calibration": "calibrating", "results": "measuring"}
-_TIMED: dict[str, str] = {"pose": "pose", "calibration": "calibration", "results": "measuring and writing"}
+_DESCRIPTIONS: dict[Stage, str] = {
+    "pose": "pose",
+    "guided": "guided pose",
+    "calibration": "calibrating",
+    "results": "measuring",
+}
+_TIMED: dict[str, str] = {
+    "pose": "pose",
+    "guided": "guided pose",
+    "calibration": "calibration",
+    "results": "measuring and writing",
+}
 
 
 class ProgressObserver:
@@ -160,7 +170,8 @@ def summary_table(analysis: Analysis, out_dir: Path, total_s: float) -> Table:
     parts = [f"{label} {_seconds(times[name])}" for name, label in _TIMED.items() if name in times]
     table.add_row("time", f"{_seconds(total_s)} ({', '.join(parts)})")
     if frames:
-        table.add_row("pose speed", f"{1000 * times.get('pose', 0.0) / frames:.0f} ms per frame")
+        pose_s = times.get("pose", 0.0) + times.get("guided", 0.0)
+        table.add_row("pose speed", f"{1000 * pose_s / frames:.0f} ms per frame")
     table.add_row("written to", str(out_dir))
     return table
 

@@ -10,7 +10,7 @@ from typing import Any, Literal, get_args
 
 from service.domain import feet_to_metres
 from service.geometry import DEFAULT_HEIGHT_M
-from service.pose.model_files import POSE_MODELS
+from service.pose.model_files import POSE_CHOICES
 
 from .errors import AnalyzeError
 
@@ -20,6 +20,8 @@ DEFAULT_THRESHOLD = "6ft"
 # Most usable people one calibration solves on (a spatially balanced sample when there are more), as the
 # service's POSEMETRY_CALIBRATION_SAMPLE_CAP: beyond a few thousand the answer stops changing, the time does not.
 DEFAULT_SAMPLE_CAP = 2000
+# A handful of people pins no focal length; the service waits for this many before its first solve.
+DEFAULT_MIN_PEOPLE = 30
 _THRESHOLD = re.compile(r"^\s*([0-9]*\.?[0-9]+(?:e[+-]?\d+)?)\s*(m|metres?|meters?|ft|feet|foot)\s*$", re.IGNORECASE)
 
 
@@ -60,7 +62,7 @@ class AnalyzeOptions:
     stride: int = 1
     max_frames: int | None = None
     pose_model: str | None = None
-    """`thunder` or `lightning`; None: the service's POSEMETRY_POSE_MODEL."""
+    """`thunder`, `lightning` or `auto` (by person size); None: the service's POSEMETRY_POSE_MODEL."""
     threshold: Threshold | str = DEFAULT_THRESHOLD
     """A Threshold, or text such as `6ft` that `checked()` parses."""
     focal_px: float | None = None
@@ -78,11 +80,15 @@ class AnalyzeOptions:
     """None: the service's POSEMETRY_MODEL_DIR."""
     detector_input_px: int | None = None
     """Side the person detector sees the frame at; None: the service's POSEMETRY_DETECTOR_INPUT_PX (640)."""
+    min_people: int = DEFAULT_MIN_PEOPLE
+    """Fewest usable people a calibration is solved from (the service's POSEMETRY_CALIBRATION_MIN_PEOPLE default)."""
+    guided: bool = True
+    """Run pose again with the first calibration guiding the detector, and solve again (service/analyze/run.py)."""
 
     def checked(self) -> AnalyzeOptions:
         """These options with the threshold parsed; AnalyzeError naming the first impossible choice."""
         for name, value, allowed in (
-            ("--pose-model", self.pose_model, (*POSE_MODELS, None)),
+            ("--pose-model", self.pose_model, (*POSE_CHOICES, None)),
             ("--image-format", self.image_format, get_args(ImageFormat)),
             ("--unit", self.unit, get_args(Unit)),
         ):
@@ -99,6 +105,8 @@ class AnalyzeOptions:
         px = self.detector_input_px
         if px is not None and not (32 <= px <= 2048 and px % 32 == 0):
             raise AnalyzeError(f"the detector input size must be a multiple of 32 from 32 to 2048 px, got {px}")
+        if self.min_people < 3:
+            raise AnalyzeError(f"at least 3 people are needed to calibrate, got --min-people {self.min_people}")
         if self.sample_cap < 10:
             raise AnalyzeError(f"the calibration sample cap must be at least 10, got {self.sample_cap}")
         threshold = parse_threshold(self.threshold) if isinstance(self.threshold, str) else self.threshold

@@ -7,10 +7,18 @@ from typing import Annotated
 from fastapi import APIRouter, Query, Request, Response, status
 
 from service.cameras import repository
-from service.cameras.schemas import CameraList, CameraOut, CameraSettings
+from service.cameras.schemas import CameraList, CameraOut, CameraSettings, StaticSpotList, StaticSpotOut
 from service.cameras.service import apply_settings, require_camera
+from service.cameras.static_spots import static_spots
 from service.domain import CONVERTED_DECIMALS, metres_to_feet
-from service.http.dependencies import CameraIdPath, DispatcherDep, ReadSessionDep, SessionDep, nudge_best_effort
+from service.http.dependencies import (
+    CameraIdPath,
+    DispatcherDep,
+    ReadSessionDep,
+    SessionDep,
+    SettingsDep,
+    nudge_best_effort,
+)
 from service.http.links import camera_url
 from service.keys.dependencies import PrincipalDep
 from service.store.models import Camera
@@ -86,6 +94,27 @@ def list_cameras(
 @router.get("/{camera_id}", response_model=CameraOut)
 def get_camera(camera_id: CameraIdPath, session: ReadSessionDep) -> CameraOut:
     return camera_out(require_camera(session, camera_id))
+
+
+@router.get("/{camera_id}/static-spots", response_model=StaticSpotList)
+def get_static_spots(camera_id: CameraIdPath, session: ReadSessionDep, settings: SettingsDep) -> StaticSpotList:
+    """Where the camera's detector keeps finding a "person" that has not moved for `static_after_s` of frame time
+    (image frames only): a mannequin, a poster, a statue. People found there are measured but give no calibration
+    evidence and raise no violation; the list lets an operator check that nobody real was taken for one."""
+    require_camera(session, camera_id)
+    spots = static_spots(session, camera_id, settings.static_after_s)
+    return StaticSpotList(
+        static_after_s=settings.static_after_s,
+        items=[
+            StaticSpotOut(
+                box_px=(spot.left_px, spot.top_px, spot.right_px, spot.bottom_px),
+                first_seen=spot.first_seen,
+                last_seen=spot.last_seen,
+                sightings=spot.sightings,
+            )
+            for spot in spots
+        ],
+    )
 
 
 @router.delete("/{camera_id}", status_code=status.HTTP_204_NO_CONTENT, response_class=Response)

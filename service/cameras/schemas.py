@@ -88,3 +88,19 @@ class CameraList(BaseModel):
 
     items: list[CameraOut]
     next_after: str | None
+
+
+class StaticSpotOut(BaseModel):
+    """A place where the detector keeps finding a "person" that never moves (a mannequin, a poster, a statue)."""
+
+    box_px: tuple[float, float, float, float] = Field(description="left, top, right, bottom of its first box.")
+    first_seen: datetime = Field(description="Frame time of its first sighting.")
+    last_seen: datetime = Field(description="Frame time of its latest sighting.")
+    sightings: int = Field(description="Frames it was found in, unmoved.")
+
+
+class StaticSpotList(BaseModel):
+    """The camera's static spots: people found there give no calibration evidence and raise no violation."""
+
+    static_after_s: float = Field(description="How long a spot must stay unmoved to be static (a setting).")
+    items: list[StaticSpotOut]

@@ -14,7 +14,9 @@ def analyze(
     equal_focal: bool = typer.Option(True, "--equal-focal/--free-focal", help="Square pixels (fx = fy), or not."),
     stride: int = typer.Option(1, help="Analyse every n-th frame."),
     max_frames: int | None = typer.Option(None, help="Analyse at most this many frames (after the stride)."),
-    pose_model: str | None = typer.Option(None, help="thunder or lightning (default: POSEMETRY_POSE_MODEL)."),
+    pose_model: str | None = typer.Option(
+        None, help="thunder, lightning or auto (by person size; default: POSEMETRY_POSE_MODEL)."
+    ),
     threshold: str = typer.Option("6ft", help="Violation distance with its unit, e.g. 6ft or 1.8m."),
     focal_px: float | None = typer.Option(None, help="Known focal length in pixels: only the ground is solved."),
     distortion: bool = typer.Option(False, "--distortion/--no-distortion", help="Also estimate lens distortion."),
@@ -29,6 +31,15 @@ def analyze(
         None,
         help="Detector input size, a multiple of 32 (default: POSEMETRY_DETECTOR_INPUT_PX); larger finds "
         "smaller people, at quadratic cost.",
+    ),
+    min_people: int = typer.Option(
+        30, help="Fewest usable people to calibrate from (fewer give a camera that looks solved and is not)."
+    ),
+    guided: bool = typer.Option(
+        True,
+        "--guided/--no-guided",
+        help="Once calibrated, run pose again with the calibration guiding the detector, and solve again (twice "
+        "the pose time; finds the small and seated people of steep views).",
     ),
 ) -> None:
     """Offline: pose on every frame, one calibration from all of them, distances per frame, pictures and a video."""
@@ -50,5 +61,7 @@ def analyze(
         unit=unit,
         model_dir=model_dir,
         detector_input_px=detector_px,
+        guided=guided,
+        min_people=min_people,
     )
     raise typer.Exit(run_command(path, out, options))

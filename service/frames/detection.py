@@ -4,6 +4,11 @@
 once per worker process (`load_pose_estimator` caches it). A picture that cannot be analysed, or missing model
 files, fail this frame with the reason, not the worker. People are stored only while the frame is still
 `detecting`, so a pose job that runs twice (a retry after a crash) stores them once.
+
+A calibrated camera's frames are searched the calibrated way: the camera's current calibration predicts how tall a
+person appears on every row, so the detector looks at each band of the frame at the scale that makes its people
+the detector's favourite size and skips rows above the horizon (service/pose/regions.py). An uncalibrated camera
+gets the fixed policy for an unknown view.
 """
 
 from __future__ import annotations
@@ -11,12 +16,16 @@ from __future__ import annotations
 import logging
 import time
 import uuid
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
-from service.domain import DONE, FAILED, GONE, SKIPPED
+from service.calibration.repository import current_calibration
+from service.calibration.service import calibration_from_version
+from service.cameras.static_spots import observe
+from service.domain import DONE, FAILED, GONE, SKIPPED, PersonIn
 from service.frames.images import ImageError, decode
 from service.frames.ingest import record_detection_failure, record_detections
-from service.frames.keypoints import people_from_detections
+from service.frames.keypoints import STATIC_REASON, people_from_detections
 from service.frames.repository import frame_image
 from service.observability.logs import JOBS_LOGGER, log_context
 from service.observability.metrics import POSE_INFERENCE
@@ -26,6 +35,9 @@ from service.store.models import Camera, Frame
 from service.store.sessions import read_session_factory, transaction
 
 if TYPE_CHECKING:
+    from sqlalchemy.orm import Session
+
+    from service.geometry import Calibration
     from service.queue import RedisDispatcher
 
 log = logging.getLogger(JOBS_LOGGER)
@@ -50,15 +62,43 @@ def detect_people(settings: Settings, dispatcher: RedisDispatcher, frame_uuid: u
         image = frame_image(session, frame_uuid)
         data = None if image is None else image.data
         request_id = frame.request_id
+        guide = None if camera is None else _guide(session, camera)
     if camera is None:
         return GONE
     # The frame's own request id: also right for a job queued again by a starting worker, which has no meta.
     with request_id_context(request_id), log_context(camera_id=camera.id, frame_id=frame_id):
-        return _detect(settings, dispatcher, frame_uuid, camera, data)
+        return _detect(settings, dispatcher, frame_uuid, camera, data, guide)
+
+
+def _mark_static(
+    session: Session, frame_uuid: uuid.UUID, camera_id: str, people: list[PersonIn], static_after_s: float
+) -> list[PersonIn]:
+    """The frame's people, those standing at one of the camera's static spots marked so (cameras.static_spots)."""
+    frame = session.get(Frame, frame_uuid)
+    if frame is None or frame.status != "detecting":
+        return people  # a duplicate run: record_detections stores nothing, so no sighting is counted twice
+    static = observe(session, camera_id, frame.timestamp, [person.box_px for person in people], static_after_s)
+    return [
+        replace(person, unusable_reason=STATIC_REASON) if still else person
+        for person, still in zip(people, static, strict=True)
+    ]
+
+
+def _guide(session: Session, camera: Camera) -> Calibration | None:
+    """The camera's current calibration, to guide the detector; None while it has none."""
+    version = current_calibration(session, camera.id)
+    if version is None:
+        return None
+    return calibration_from_version(version, (camera.image_width_px, camera.image_height_px))
 
 
 def _detect(
-    settings: Settings, dispatcher: RedisDispatcher, frame_uuid: uuid.UUID, camera: Camera, data: bytes | None
+    settings: Settings,
+    dispatcher: RedisDispatcher,
+    frame_uuid: uuid.UUID,
+    camera: Camera,
+    data: bytes | None,
+    guide: Calibration | None,
 ) -> str:
     from service.pose.model_files import ModelFilesError
     from service.pose.pipeline import load_pose_estimator
@@ -69,7 +109,7 @@ def _detect(
         _header, bgr = decode(data, max_pixels=settings.max_image_pixels)
         estimator = load_pose_estimator(settings)
         started = time.perf_counter()
-        found = estimator(bgr)
+        found = estimator(bgr, guide)
         inference_s = time.perf_counter() - started
     except (ImageError, ModelFilesError) as exc:
         log.warning("pose of frame %s of camera %s failed: %s", frame_uuid, camera.id, exc)
@@ -80,16 +120,23 @@ def _detect(
     size = (camera.image_width_px, camera.image_height_px)
     people = people_from_detections(found[: settings.max_people_per_frame], size)
     with transaction(settings) as session:
+        people = _mark_static(session, frame_uuid, camera.id, people, settings.static_after_s)
         stored = record_detections(session, frame_uuid, people, pose_model=estimator.name)
     if stored is None:
         return SKIPPED
     log.info(
-        "frame %s of camera %s: %d people found in %.0f ms",
+        "frame %s of camera %s: %d people found in %.0f ms (%s)",
         frame_uuid,
         camera.id,
         len(people),
         inference_s * 1000,
-        extra={"people": len(people), "inference_ms": round(inference_s * 1000, 1), "pose_model": estimator.name},
+        "guided by calibration" if guide is not None else "uncalibrated search",
+        extra={
+            "people": len(people),
+            "inference_ms": round(inference_s * 1000, 1),
+            "pose_model": estimator.name,
+            "guided": guide is not None,
+        },
     )
     dispatcher.measure_requested([camera.id])
     return DONE

@@ -20,14 +20,24 @@ below therefore keep points for measurement generously and admit evidence conser
 
 Centres posted explicitly (`shoulder`/`ankle`) have no scores; the border, upright and size rules still apply.
 
+People found in an image come with the pose pipeline's own verdict (service/pose/assess.py), which sees the whole
+frame: which keypoints are trustworthy (seen, not inside the box of a person in front, an ankle only below a seen
+knee) and the posture. `person_from_detection` builds centres from trusted keypoints only, so an ankle guessed
+behind someone else never places a person (they are placed from their shoulders, or not at all), and only
+`standing` people can be evidence: `seated` ones (legs seen but folded) and `partial` ones (lower body not seen)
+are measured, never calibrated on. Their reasons start with `SEATED_REASON` / `PARTIAL_REASON`, which is how the
+store and the measuring side can tell them apart until the store keeps the posture itself.
+
 One rule needs the whole frame: a top-down pipeline runs the pose model on each detection's crop, and two
 detections can yield the same pose, either because the detector boxed one person twice (a whole-body and a
 partial box) or because a crop around one person also holds a more salient neighbour and the single-person pose
 model reads the neighbour. The second pose is then a copy of the first: measured, it is a phantom person a few
 centimetres from the real one (a false violation in every such frame; seen on the Oxford Town Centre clip in
 most frames). `people_from_detections` therefore drops the points of a pose that repeats a more confident
-detection's pose (median distance between their keypoints under `DUPLICATE_POSE_FRACTION` of the box height):
-the detection is kept, with the reason, but is neither evidence nor placed.
+detection's pose (median distance between their keypoints under `DUPLICATE_POSE_FRACTION` of the box height, or
+the shoulder or ankle centre that would place them that close to the other's: two boxes of a person cut by the
+frame's edge agree on little but their shoulders): the detection is kept, with the reason, but is neither
+evidence nor placed.
 """
 
 from __future__ import annotations
@@ -56,6 +66,9 @@ MIN_SEGMENT_PX = 8.0
 # pixels (~1-2 % of their height); two people pressed together differ by a shoulder width (~25 %).
 DUPLICATE_POSE_FRACTION = 0.05
 MIN_SHARED_KEYPOINTS = 4
+SEATED_REASON = "seated or crouching (legs seen but folded): a position, not calibration evidence"
+PARTIAL_REASON = "lower body not seen (hidden or out of view): placed from the shoulders, not calibration evidence"
+STATIC_REASON = "static: found at a spot where nothing has moved for a long time (a mannequin, a poster, a statue)"
 
 Point = tuple[float, float]
 
@@ -110,8 +123,21 @@ def person_from_keypoints(
 
 
 def person_from_detection(person: DetectedPerson, image_size_px: tuple[int, int]) -> PersonIn:
-    """A person the pose model found, as the store's row: its keypoints' verdict plus the detector's box and score."""
-    row = person_from_keypoints(person.coco_keypoints(), image_size_px)
+    """A person the pose model found, as the store's row: centres from trusted keypoints, the posture's verdict,
+    the raw keypoints (kept for re-analysis) and the detector's box and score."""
+    keypoints = person.coco_keypoints()
+    row = person_from_keypoints(keypoints, image_size_px)
+    if person.keypoint_trusted is not None:
+        trusted = [
+            [x, y, score if ok else 0.0] for (x, y, score), ok in zip(keypoints, person.keypoint_trusted, strict=True)
+        ]
+        shoulder, ankle = coco_centres(trusted)
+        reason = evidence_problem(shoulder, ankle, image_size_px)
+        if person.posture == "seated":
+            reason = SEATED_REASON
+        elif person.posture == "partial":
+            reason = PARTIAL_REASON
+        row = replace(row, shoulder_px=shoulder, ankle_px=ankle, unusable_reason=reason)
     return replace(row, box_px=tuple(float(v) for v in person.box_xyxy_px), detection_score=person.detection_score)
 
 
@@ -127,15 +153,19 @@ def person_from_centres(shoulder: Point | None, ankle: Point | None, image_size_
 
 
 def _same_pose(a: PersonIn, b: PersonIn) -> bool:
-    """Whether two detections' keypoints describe one pose (see the module docstring)."""
+    """Whether two detections' keypoints describe one pose (see the module docstring), or place them at one point."""
     if a.keypoints is None or b.keypoints is None or a.box_px is None or b.box_px is None:
         return False
+    scale_px = max(a.box_px[3] - a.box_px[1], b.box_px[3] - b.box_px[1])
+    for point_a, point_b in ((a.shoulder_px, b.shoulder_px), (a.ankle_px, b.ankle_px)):
+        if point_a is not None and point_b is not None:
+            if math.hypot(point_a[0] - point_b[0], point_a[1] - point_b[1]) < DUPLICATE_POSE_FRACTION * scale_px:
+                return True
     ka, kb = np.asarray(a.keypoints, dtype=float), np.asarray(b.keypoints, dtype=float)
     shared = (ka[:, 2] >= MIN_SCORE) & (kb[:, 2] >= MIN_SCORE)
     if shared.sum() < MIN_SHARED_KEYPOINTS:
         return False
     gap_px = float(np.median(np.hypot(*(ka[shared, :2] - kb[shared, :2]).T)))
-    scale_px = max(a.box_px[3] - a.box_px[1], b.box_px[3] - b.box_px[1])
     return gap_px < DUPLICATE_POSE_FRACTION * scale_px
 
 

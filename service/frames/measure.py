@@ -17,8 +17,19 @@ import numpy as np
 import pydantic_core
 
 from service.domain import PersonIn, StoredCentres, ViolationIn, centres
+from service.frames.keypoints import PARTIAL_REASON, SEATED_REASON, STATIC_REASON
 from service.frames.schemas import FrameResult
 from service.geometry import Calibration, measure
+from service.geometry.priors import DEFAULT_HEIGHT_STD_M
+
+# Shoulder height of the people who are not calibration evidence, for placing them from their shoulders: a fraction
+# of the camera's standing prior, and its 1-sigma in metres. Seated: an adult's shoulders are ~0.59 m above the
+# seat (seated acromion height, 50th percentile) on a ~0.45 m seat, ~1.03 m above the floor against 1.32 m standing,
+# with seats from stools to low sofas (+-0.12 m). Lower body not seen: standing or seated, nobody can tell, so the
+# standing prior with a sigma that reaches a seated person's shoulders (0.3 m).
+SEATED_HEIGHT_FRACTION = 0.78
+SEATED_HEIGHT_STD_M = 0.12
+PARTIAL_HEIGHT_STD_M = 0.3
 
 _NAN_POINT = (math.nan, math.nan)
 
@@ -53,6 +64,19 @@ def _ground_axes(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return right, forward
 
 
+def _shoulder_priors(people: Sequence[StoredCentres | PersonIn]) -> tuple[np.ndarray, np.ndarray]:
+    """Each person's shoulder height (fraction of the prior) and its sigma, from the pose's verdict on them."""
+    scale = np.ones(len(people))
+    std_m = np.full(len(people), DEFAULT_HEIGHT_STD_M)
+    for index, person in enumerate(people):
+        reason = person.unusable_reason or ""
+        if reason.startswith(SEATED_REASON):
+            scale[index], std_m[index] = SEATED_HEIGHT_FRACTION, SEATED_HEIGHT_STD_M
+        elif reason.startswith(PARTIAL_REASON):
+            std_m[index] = PARTIAL_HEIGHT_STD_M
+    return scale, std_m
+
+
 def measure_people(
     people: Sequence[StoredCentres | PersonIn],
     cal: Calibration,
@@ -62,6 +86,11 @@ def measure_people(
     noise_px: float | None = None,
 ) -> FrameComputation:
     """Place every person (ankles when seen, else shoulders), measure all pairs i < j, and flag violations.
+
+    Everyone who can be placed counts, evidence or not: a seated person, or one whose lower body is hidden, is
+    placed from whatever the pose trusted (their ankles, else their shoulders at a seated or uncertain height, see
+    `_shoulder_priors`), with the wider sigma that implies, and takes part in violations. Only a static "person"
+    (found where nothing has moved for a long time, cameras.static_spots) never does.
 
     A pair is a violation when its distance is strictly below `distance_threshold_m`; pairs involving a person
     who could not be placed (no shoulder and no ankle, or a ray missing the ground) have null distances and are
@@ -73,13 +102,15 @@ def measure_people(
     bottoms = np.array([a if a is not None else _NAN_POINT for _, a in points], dtype=float).reshape(-1, 2)
     n = len(points)
     if n:
-        m = measure(cal, tops, bottoms, noise_px=noise_px)
+        scale, std_m = _shoulder_priors(people)
+        m = measure(cal, tops, bottoms, noise_px=noise_px, height_std_m=std_m, height_scale=scale)
         positions, distances, stds = m.points_bottom, m.distances_m, m.distance_std_m
     else:
         positions, distances, stds = np.zeros((0, 3)), np.zeros((0, 0)), np.zeros((0, 0))
     foot = -cal.rho * cal.normal  # the point on the ground straight below the camera
     right, forward = _ground_axes(cal.normal)
     placed = np.all(np.isfinite(positions), axis=1)
+    static = [(person.unusable_reason or "").startswith(STATIC_REASON) for person in people]
     ground = np.stack(((positions - foot) @ right, (positions - foot) @ forward), -1)
     placed_people = [
         {
@@ -87,9 +118,10 @@ def measure_people(
             "placed_from": ("ankles" if points[index][1] is not None else "shoulders") if is_placed else None,
             "ground_m": ground_m if is_placed else None,
             "point_m": point_m if is_placed else None,
+            "static": still,
         }
-        for index, (is_placed, ground_m, point_m) in enumerate(
-            zip(placed.tolist(), ground.tolist(), positions.tolist(), strict=True)
+        for index, (is_placed, ground_m, point_m, still) in enumerate(
+            zip(placed.tolist(), ground.tolist(), positions.tolist(), static, strict=True)
         )
     ]
     # Pairs i < j, from plain Python values: a frame of 20 people has 190 pairs.
@@ -102,7 +134,14 @@ def measure_people(
             first.tolist(), second.tolist(), pair_m.tolist(), pair_std_m.tolist(), known.tolist(), strict=True
         )
     ]
-    close = [pair for pair in pairs if pair["distance_m"] is not None and pair["distance_m"] < distance_threshold_m]
+    # A static "person" (a mannequin, cameras.static_spots) is measured like anyone but raises no violation.
+    close = [
+        pair
+        for pair in pairs
+        if pair["distance_m"] is not None
+        and pair["distance_m"] < distance_threshold_m
+        and not (static[pair["i"]] or static[pair["j"]])
+    ]
     violations = [
         ViolationIn(person_i=p["i"], person_j=p["j"], distance_m=p["distance_m"], distance_std_m=p["distance_std_m"])
         for p in close

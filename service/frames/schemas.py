@@ -117,6 +117,11 @@ class PersonPosition(BaseModel):
     placed_from: Literal["ankles", "shoulders"] | None
     ground_m: tuple[float, float] | None
     point_m: tuple[float, float, float] | None
+    static: bool = Field(
+        default=False,
+        description="Found at one of the camera's static spots (nothing there has moved for `static_after_s`: a "
+        "mannequin, a poster): measured, but in no violation and no calibration evidence.",
+    )
 
 
 class PairDistance(BaseModel):

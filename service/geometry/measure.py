@@ -6,6 +6,11 @@ the shoulder centre (ray meets the plane raised by the height prior). The
 uncertainty of each distance combines, to first order, the calibration's
 covariance, the keypoint noise of both people and, for people placed from
 their shoulders, the spread of real heights around the prior.
+
+Not everyone stands: a seated person's shoulders are lower than a standing one's, and a person whose lower body
+is hidden may be either. Callers say so per person (`height_scale`: the shoulders' height as a fraction of the
+standing prior, `height_std_m`: how uncertain that height is), so such people are placed where their shoulders
+put them and their distances carry the wider sigma that uncertainty implies.
 """
 
 from __future__ import annotations
@@ -55,7 +60,7 @@ class _Variants:
     bottoms_px: FloatArray  # (K, N, 2)
 
 
-def _positions(cal: Calibration, v: _Variants, from_ankles: FloatArray) -> FloatArray:
+def _positions(cal: Calibration, v: _Variants, from_ankles: FloatArray, height_scale: FloatArray) -> FloatArray:
     """(K, N, 3) camera-frame ground points: the ankle ray meets the plane; without ankles, the shoulder ray
     meets the plane raised by the height prior and the point is lowered back onto the ground."""
     chosen = undistort_px(cal, np.where(from_ankles[:, None], v.bottoms_px, v.tops_px))
@@ -67,7 +72,7 @@ def _positions(cal: Calibration, v: _Variants, from_ankles: FloatArray) -> Float
         ),
         -1,
     )
-    lift_m = np.where(from_ankles, 0.0, v.height_m[:, None])  # (K, N)
+    lift_m = np.where(from_ankles, 0.0, v.height_m[:, None] * height_scale[None, :])  # (K, N)
     normal = v.normal[:, None, :]
     x = intersect_plane(ray, normal, v.rho_m[:, None] - lift_m)
     return x - lift_m[..., None] * normal
@@ -123,21 +128,26 @@ def measure(
     tops: ArrayLike,
     bottoms: ArrayLike,
     noise_px: float | None = None,
-    height_std_m: float = DEFAULT_HEIGHT_STD_M,
+    height_std_m: ArrayLike = DEFAULT_HEIGHT_STD_M,
+    height_scale: ArrayLike = 1.0,
 ) -> Measurement:
     """Place people and measure every pair. Rows of NaN mark keypoints that were not seen.
 
     noise_px defaults to the keypoint noise the calibration estimated from its
-    own residuals; height_std_m is the spread of real heights around the prior,
-    which matters only for people placed from their shoulders.
+    own residuals; height_std_m is the spread of real shoulder heights around the
+    prior (one value, or one per person), which matters only for people placed from
+    their shoulders; height_scale (one value, or one per person, > 0) is each person's
+    shoulder height as a fraction of the calibration's height prior (1 standing).
     """
     tops_px = np.asarray(tops, dtype=np.float64).reshape(-1, 2)
     bottoms_px = np.asarray(bottoms, dtype=np.float64).reshape(-1, 2)
     from_ankles = np.all(np.isfinite(bottoms_px), axis=1)
+    scale = np.broadcast_to(np.asarray(height_scale, dtype=np.float64), from_ankles.shape)
+    std_m = np.broadcast_to(np.asarray(height_std_m, dtype=np.float64), from_ankles.shape)
     unc = cal.uncertainty
     sigma_px = (unc.noise_px if unc is not None else 0.0) if noise_px is None else noise_px
     with_camera = unc is not None
-    xs = _positions(cal, _variants(cal, tops_px, bottoms_px, with_camera), from_ankles)
+    xs = _positions(cal, _variants(cal, tops_px, bottoms_px, with_camera), from_ankles, scale)
     x0 = xs[0]
     dist = pairwise_distances(x0)
     n = len(x0)
@@ -154,10 +164,9 @@ def measure(
     # Keypoint noise on the point each person is placed from, and height spread for shoulder placement.
     dx_dpx = (xs[-3:-1] - x0) / _KEYPOINT_STEP_PX  # (2, N, 3): along x, along y
     per_person = sigma_px**2 * np.einsum("ani,anj->nij", dx_dpx, dx_dpx)
-    dx_dh = (xs[-1] - x0) / _HEIGHT_STEP_M
-    per_person += (height_std_m**2 * np.where(from_ankles, 0.0, 1.0))[:, None, None] * np.einsum(
-        "ni,nj->nij", dx_dh, dx_dh
-    )
+    # The last variant raises the prior by one step, each person's shoulders by `scale` steps.
+    dx_dh = (xs[-1] - x0) / (_HEIGHT_STEP_M * scale[:, None])
+    per_person += (std_m**2 * np.where(from_ankles, 0.0, 1.0))[:, None, None] * np.einsum("ni,nj->nij", dx_dh, dx_dh)
     var += np.einsum("ijx,ixy,ijy->ij", unit, per_person, unit) + np.einsum("ijx,jxy,ijy->ij", unit, per_person, unit)
     std = np.sqrt(var)
     np.fill_diagonal(std, 0.0)

@@ -4,17 +4,24 @@ The exported graph already contains NMS and returns `dets` (x1, y1, x2, y2, scor
 `labels` (always 0, person). Preprocessing follows mmdet's RTMDet convention exactly (BGR, letterbox in the
 top-left corner, pad 114, per-channel mean/std), because any deviation costs recall on the small, far people a
 surveillance camera mostly sees. The native size is 320, but 640 finds distant pedestrians the 320 input misses.
+
+`PersonDetector.detect` runs a plan of regions (regions.py: parts of the frame, each at its own scale) and merges
+their boxes into one per person (merge.py); calling the detector runs the single whole-frame letterbox.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Final
 
 import cv2
 import numpy as np
 
+from .merge import merge_boxes
+from .regions import STRIDE_PX, Region, ceil_to
 from .sessions import make_session
 
 DEFAULT_INPUT_PX: Final = 640
@@ -22,8 +29,6 @@ DEFAULT_SCORE_THRESHOLD: Final = 0.3
 PAD_VALUE: Final = 114
 MEAN_BGR: Final = np.array([103.53, 116.28, 123.675], dtype=np.float32)
 STD_BGR: Final = np.array([57.375, 57.12, 58.395], dtype=np.float32)
-STRIDE_PX: Final = 32
-"""The detector's coarsest feature stride: input sides must be multiples of it."""
 _SCALE: Final = (1.0 / STD_BGR).astype(np.float32)
 _OFFSET: Final = (-MEAN_BGR / STD_BGR).astype(np.float32)
 _PAD_NORMALISED: Final = ((PAD_VALUE - MEAN_BGR) / STD_BGR).astype(np.float32)
@@ -59,20 +64,32 @@ def letterbox(image_bgr: np.ndarray, size_px: int, *, square: bool = True) -> tu
     height, width = image_bgr.shape[:2]
     ratio = size_px / max(height, width)
     new_w, new_h = max(1, round(width * ratio)), max(1, round(height * ratio))
+    padded = (size_px, size_px) if square else (ceil_to(new_w, STRIDE_PX), ceil_to(new_h, STRIDE_PX))
+    return _normalised(image_bgr, (new_w, new_h), padded, ratio), Letterbox(ratio=ratio, size_px=size_px)
+
+
+def region_tensor(image_bgr: np.ndarray, region: Region) -> np.ndarray:
+    """(1, 3, H, W) float32 normalised input for one region: its pixels resized by its scale, padded to the stride.
+
+    A whole-frame region at scale S / longer side is exactly the stride-padded letterbox at S.
+    """
+    new_w, new_h = region.input_size
+    padded = (ceil_to(new_w, STRIDE_PX), ceil_to(new_h, STRIDE_PX))
+    return _normalised(image_bgr[region.y0 : region.y1, region.x0 : region.x1], (new_w, new_h), padded, region.scale)
+
+
+def _normalised(image_bgr: np.ndarray, size: tuple[int, int], padded: tuple[int, int], ratio: float) -> np.ndarray:
+    """The image resized to `size` (w, h), normalised into the top-left of a `padded` (w, h) tensor of pad value."""
+    new_w, new_h = size
     interpolation = cv2.INTER_AREA if ratio < 1 else cv2.INTER_LINEAR
     resized = cv2.resize(image_bgr, (new_w, new_h), interpolation=interpolation)
-    tensor_h, tensor_w = (size_px, size_px) if square else (_ceil_to(new_h, STRIDE_PX), _ceil_to(new_w, STRIDE_PX))
-    tensor = np.empty((1, 3, tensor_h, tensor_w), dtype=np.float32)
+    tensor = np.empty((1, 3, padded[1], padded[0]), dtype=np.float32)
     body = tensor[0, :, :new_h, :new_w]
     np.multiply(resized.transpose(2, 0, 1), _SCALE[:, None, None], out=body, casting="unsafe")
     body += _OFFSET[:, None, None]
     tensor[0, :, new_h:, :] = _PAD_NORMALISED[:, None, None]
     tensor[0, :, :new_h, new_w:] = _PAD_NORMALISED[:, None, None]
-    return tensor, Letterbox(ratio=ratio, size_px=size_px)
-
-
-def _ceil_to(value: int, multiple: int) -> int:
-    return -(-value // multiple) * multiple
+    return tensor
 
 
 @dataclass(frozen=True)
@@ -83,6 +100,22 @@ class Detections:
     """(N, 4) float64 left, top, right, bottom in image pixels, clipped to the image."""
     scores: np.ndarray
     """(N,) float64 in [0, 1]."""
+
+
+@dataclass
+class RegionTimes:
+    """What one `detect` call spent, per region: the benchmark's detector/tiling split."""
+
+    regions: list[Region] = field(default_factory=list)
+    wall_s: list[float] = field(default_factory=list)
+    cpu_s: list[float] = field(default_factory=list)
+    """Process CPU time (all threads) per region: preprocessing, the session run and decoding."""
+    merge_s: float = 0.0
+
+    @property
+    def base(self) -> int | None:
+        """Index of the plain detector pass (the first whole-frame region), None when the plan has none."""
+        return next((k for k, r in enumerate(self.regions) if r.whole_frame and r.shared_edges == (False,) * 4), None)
 
 
 class PersonDetector:
@@ -110,6 +143,46 @@ class PersonDetector:
         tensor, placement = letterbox(image_bgr, self.input_px, square=self.square)
         dets = self.session.run(["dets"], {self._input_name: tensor})[0][0]
         return decode(dets, placement, image_bgr.shape[:2], self.score_threshold)
+
+    def detect(
+        self,
+        image_bgr: np.ndarray,
+        plan: Sequence[Region],
+        earlier: tuple[Detections, RegionTimes] | None = None,
+    ) -> tuple[Detections, RegionTimes]:
+        """One box per person over a plan of regions (each region keeps the people it owns; then merge.py).
+
+        `earlier`: what an earlier call on the same image found and spent, merged into this answer (a second look).
+        """
+        times = RegionTimes()
+        boxes, scores = [], []
+        if earlier is not None:
+            boxes.append(earlier[0].boxes_xyxy_px)
+            scores.append(earlier[0].scores)
+            times.regions += earlier[1].regions
+            times.wall_s += earlier[1].wall_s
+            times.cpu_s += earlier[1].cpu_s
+            times.merge_s += earlier[1].merge_s
+        for region in plan:
+            start, start_cpu = time.perf_counter(), time.process_time()
+            dets = self.session.run(["dets"], {self._input_name: region_tensor(image_bgr, region)})[0][0]
+            dets = np.asarray(dets, dtype=np.float64).reshape(-1, 5)
+            dets = dets[dets[:, 4] >= self.score_threshold]
+            found = dets[:, :4] / region.scale + (region.x0, region.y0, region.x0, region.y0)
+            found[:, [0, 2]] = found[:, [0, 2]].clip(region.x0, region.x1)
+            found[:, [1, 3]] = found[:, [1, 3]].clip(region.y0, region.y1)
+            mine = region.owns(found) & (found[:, 2] - found[:, 0] > 1.0) & (found[:, 3] - found[:, 1] > 1.0)
+            boxes.append(found[mine])
+            scores.append(dets[mine, 4])
+            times.regions.append(region)
+            times.wall_s.append(time.perf_counter() - start)
+            times.cpu_s.append(time.process_time() - start_cpu)
+        start = time.perf_counter()
+        merged_boxes, merged_scores = merge_boxes(
+            np.concatenate(boxes) if boxes else np.zeros((0, 4)), np.concatenate(scores) if scores else np.zeros(0)
+        )
+        times.merge_s += time.perf_counter() - start
+        return Detections(boxes_xyxy_px=merged_boxes, scores=merged_scores), times
 
 
 def decode(dets: np.ndarray, placement: Letterbox, image_hw: tuple[int, ...], score_threshold: float) -> Detections:

@@ -20,6 +20,9 @@ from typing import Final, Literal
 
 PoseModelName = Literal["thunder", "lightning"]
 POSE_MODELS: Final[tuple[PoseModelName, ...]] = ("thunder", "lightning")
+PoseChoice = Literal["thunder", "lightning", "auto"]
+"""A pipeline's pose model: one of the two, or `auto` (each person by their size, service/pose/pipeline.py)."""
+POSE_CHOICES: Final[tuple[PoseChoice, ...]] = (*POSE_MODELS, "auto")
 FETCH_COMMAND: Final = "posemetry models fetch --dir {dir}"
 # Crop side each pose model takes (MoveNet SinglePose input).
 POSE_INPUT_PX: Final[dict[str, int]] = {"thunder": 256, "lightning": 192}
@@ -158,6 +161,19 @@ def check_files(model_dir: Path, keys: tuple[str, ...] | None = None) -> dict[st
     """Problem (or None) per file name for the given registry keys (all by default)."""
     specs = [REGISTRY[k] for k in (keys or tuple(REGISTRY))]
     return {spec.file_name: file_problem(model_dir, spec) for spec in specs}
+
+
+def resolve_choice(model_dir: Path | str, choice: PoseChoice) -> list[ModelPaths]:
+    """Verified paths for a pipeline's pose choice (`auto` needs both MoveNets); one `ModelFilesError` naming every
+    bad file otherwise."""
+    if choice not in POSE_CHOICES:
+        raise ValueError(f"unknown pose model {choice!r}; expected one of {', '.join(POSE_CHOICES)}")
+    models: tuple[PoseModelName, ...] = POSE_MODELS if choice == "auto" else (choice,)
+    directory = Path(model_dir).expanduser()
+    problems = {name: why for name, why in check_files(directory, ("detector", *models)).items() if why}
+    if problems:
+        raise ModelFilesError(directory, problems)
+    return [resolve_models(directory, model) for model in models]
 
 
 def resolve_models(model_dir: Path | str, pose_model: PoseModelName) -> ModelPaths:

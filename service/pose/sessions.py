@@ -7,7 +7,7 @@ Why these options:
   graphs are sequential chains and a second pool only competes for the same cores.
 - spinning off: onnxruntime's workers busy-wait between kernels by default, which wins a few percent on an idle
   machine but, on a host shared with the API, the store and other workers, burns the cores other processes need
-  and made a 15-crop batch up to ten times slower in our measurements (see service/bench/pose.py).
+  and made a 15-crop batch up to ten times slower in our measurements (see bench/pose.py).
 - full graph optimisation: constant folding, conv fusions and (only at this level) the NCHWc blocked layout:
   MoveNet Thunder takes ~19 ms of one core per crop with it and ~37 ms at the `extended` level.
 """

@@ -8,11 +8,15 @@ Coordinates are image pixels of the frame that was passed in (origin top-left, x
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
+from typing import TYPE_CHECKING, Literal, Protocol
 
 import numpy as np
 
+if TYPE_CHECKING:
+    from service.geometry import Calibration
+
 COCO17_KEYPOINTS = 17
+Posture = Literal["standing", "seated", "partial", "unknown"]
 
 
 @dataclass(frozen=True)
@@ -28,6 +32,17 @@ class DetectedPerson:
     ankles (left before right; "left" is the person's own left)."""
     keypoint_scores: np.ndarray
     """(17,) confidence per keypoint in [0, 1]."""
+    keypoint_trusted: np.ndarray | None = None
+    """(17,) bool: the keypoint was seen (score >= 0.3), is not inside the box of a person in front, and, for an
+    ankle, hangs below a seen knee (service/pose/assess.py). None when the estimator did not assess its people:
+    then a score of at least 0.3 is the only test."""
+    posture: Posture = "unknown"
+    """`standing` (shoulders and ankles trusted, legs extended: calibration evidence), `seated` (legs seen but
+    folded: seated or crouching; a position from trusted ankles, else from the shoulders with a seated height),
+    `partial` (shoulders trusted, lower body not: a position from the shoulders) or `unknown` (shoulders not
+    trusted: not placed)."""
+    pose_model: str = ""
+    """Which pose model read this person (the pipeline picks Thunder or Lightning by the person's size)."""
 
     def coco_keypoints(self) -> list[list[float]]:
         """`[[x, y, score] x 17]`: the shape the keypoint API accepts and the store keeps."""
@@ -41,6 +56,10 @@ class PoseEstimator(Protocol):
     name: str
     """Short identifier recorded with results, e.g. `rtmdet-nano+movenet-thunder`."""
 
-    def __call__(self, image_bgr: np.ndarray) -> list[DetectedPerson]:
-        """People in an (H, W, 3) uint8 BGR image (OpenCV's order), most confident detection first."""
+    def __call__(self, image_bgr: np.ndarray, calibration: Calibration | None = None) -> list[DetectedPerson]:
+        """People in an (H, W, 3) uint8 BGR image (OpenCV's order), most confident detection first.
+
+        `calibration`, the camera's current one when it has one, lets the estimator search where and at the scale
+        people can appear; without it, the estimator's fixed policy for an unknown camera.
+        """
         ...

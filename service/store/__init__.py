@@ -6,7 +6,17 @@ re-exports the pieces most callers need to open a database.
 """
 
 from .db import make_engine, make_session_factory, normalise_url
-from .models import ApiKey, Base, CalibrationVersion, Camera, Frame, FrameImage, Observation, ViolationEvent
+from .models import (
+    ApiKey,
+    Base,
+    CalibrationVersion,
+    Camera,
+    Frame,
+    FrameImage,
+    Observation,
+    StaticSpot,
+    ViolationEvent,
+)
 from .webhook_models import ViolationCooldown, WebhookAttempt, WebhookDelivery, WebhookEvent, WebhookSubscription
 
 __all__ = [
@@ -17,6 +27,7 @@ __all__ = [
     "Frame",
     "FrameImage",
     "Observation",
+    "StaticSpot",
     "ViolationCooldown",
     "ViolationEvent",
     "WebhookAttempt",

@@ -464,6 +464,29 @@ class ViolationEvent(Base):
     )
 
 
+class StaticSpot(Base):
+    """Where a camera's detector keeps finding a "person" that never moves (a mannequin, a poster, a statue).
+
+    Each image frame's boxes are matched to the camera's spots (service.cameras.static_spots); a spot seen, without
+    moving, for `static_after_s` of frame time is static: the people found there give no evidence and raise no
+    violation. A spot unseen for a while is forgotten, so a person who stood still and left leaves nothing behind.
+    """
+
+    __tablename__ = "static_spots"
+
+    id: Mapped[int] = mapped_column(BigIntegerKey, primary_key=True, autoincrement=True)
+    camera_id: Mapped[str] = mapped_column(String(CAMERA_ID_MAX_LENGTH), ForeignKey("cameras.id", ondelete="CASCADE"))
+    left_px: Mapped[float]
+    top_px: Mapped[float]
+    right_px: Mapped[float]
+    bottom_px: Mapped[float]
+    first_seen: Mapped[datetime]
+    last_seen: Mapped[datetime]
+    sightings: Mapped[int] = mapped_column(Integer)
+
+    __table_args__ = (Index("ix_static_spots_camera_id", "camera_id"),)
+
+
 class ApiKey(Base):
     """An API key: its token's digest (never the token), what it may do, and its life cycle."""
 

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from click.testing import Result
 
-from tests.pose.towncentre import TownCentreCalibration, load_calibration
+from bench.towncentre import TownCentreCalibration, load_calibration
 from tests.support.analyze import TOWN_CALIBRATION, TOWN_VIDEO, analyze, write_image
 
 STRIDE = 6

@@ -102,7 +102,7 @@ def test_unplaceable_people_and_empty_frames(client: TestClient, app: FastAPI, c
     unseen = {"keypoints": [[0.0, 0.0, 0.0]] * 17}  # a detection whose joints all failed
     people = [unseen, {"shoulder": [900, 400], "ankle": [900, 700]}, {"shoulder": [960, 400], "ankle": [960, 700]}]
     result = client.post(f"/v1/cameras/{camera}/distances", json={"people": people}).json()
-    assert result["people"][0] == {"index": 0, "placed_from": None, "ground_m": None, "point_m": None}
+    assert result["people"][0] == {"index": 0, "placed_from": None, "ground_m": None, "point_m": None, "static": False}
     assert result["pairs"][0] == {"i": 0, "j": 1, "distance_m": None, "distance_std_m": None}
     assert [(v["i"], v["j"]) for v in result["violations"]] == [(1, 2)]
     empty = client.post(f"/v1/cameras/{camera}/distances", json={"people": []}).json()

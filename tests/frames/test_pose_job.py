@@ -47,7 +47,9 @@ def test_pose_job_stores_people_once_and_drops_the_image(
         people = session.query(Observation).filter_by(frame_id=frame_id).order_by(Observation.person_index).all()
         assert frame.people == len(people) >= 10  # about 13-17 pedestrians in this frame
         usable = [p for p in people if p.usable]
-        assert len(usable) >= 6
+        # 5 measured with Thunder since only standing people with trusted ankles are evidence (8 before: one with
+        # an unseen knee, one cut by the frame's bottom edge and one repeated detection no longer count).
+        assert len(usable) >= 5
         for person in people:
             left, top, right, bottom = person.box_px
             assert 0 <= left < right <= 1920 and 0 <= top < bottom <= 1080
@@ -123,10 +125,10 @@ def test_town_centre_calibrates_from_its_own_pedestrians(
     """The real camera, end to end in the workers: 22 street frames, pose, evidence, a solve, the published truth.
 
     Oxford Town Centre's published calibration has fx = fy = 2696 px; its ground plane comes from the published
-    rotation and translation (tests/pose/towncentre.py). Measured here: fx 2735 px (+1.4 %, 1-sigma 68 px) and the
+    rotation and translation (bench/towncentre.py). Measured here: fx 2735 px (+1.4 %, 1-sigma 68 px) and the
     normal 1.8 degrees off, from 150 people; the issue's bounds (10 %, 3 degrees) are asserted.
     """
-    from tests.pose.towncentre import load_calibration
+    from bench.towncentre import load_calibration
 
     truth = load_calibration(TOWN_CENTRE / "TownCentre-calibration-ci.txt")
     for path in sorted((TOWN_CENTRE / "frames").glob("clip_*.jpg")):
@@ -142,3 +144,49 @@ def test_town_centre_calibrates_from_its_own_pedestrians(
     normal = np.array([calibration.normal_x, calibration.normal_y, calibration.normal_z])
     assert np.degrees(np.arccos(np.clip(normal @ truth.ground_normal, -1, 1))) < 3.0
     assert statuses == {"done"}  # every frame measured with it
+
+
+def test_a_calibrated_cameras_frames_are_searched_the_calibrated_way(
+    sessions: sessionmaker[Session],
+    redis_dispatcher: RedisDispatcher,
+    connection: redis.Redis,
+    town_jpeg: bytes,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """The worker hands the camera's current calibration to the detector: bands at the scale of the people there.
+
+    Before the camera has a calibration the frame gets the fixed uncalibrated plan (and its second look); once the
+    published camera is its current calibration, the next frame's plan is exactly the one that calibration predicts.
+    """
+    from bench.towncentre import as_calibration, load_calibration
+    from service.calibration.repository import add_calibration
+    from service.domain import CalibrationValues
+    from service.pose.pipeline import load_pose_estimator
+
+    estimator = load_pose_estimator(get_settings())
+    first = store_image(sessions, town_jpeg)
+    redis_dispatcher.image_stored(CAMERA, first)
+    run_jobs(connection)
+    uncalibrated = estimator.plan((1920, 1080))
+    assert estimator.last_plan[: len(uncalibrated)] == uncalibrated  # then a second look around small people
+
+    truth = as_calibration(load_calibration(TOWN_CENTRE / "TownCentre-calibration-ci.txt"))
+    with sessions() as session, session.begin():
+        values = CalibrationValues.from_solution(truth, people_used=100, evidence_count=100)
+        add_calibration(session, CAMERA, values, make_current=True)
+    second = store_image(sessions, town_jpeg)
+    caplog.set_level("INFO")
+    redis_dispatcher.image_stored(CAMERA, second)
+    run_jobs(connection)
+    guided_plan = estimator.plan((1920, 1080), truth)
+    assert guided_plan[1:] and guided_plan[1:] != uncalibrated[1:]
+    # The stored calibration round-trips through the database: the same bands, scales equal to float rounding.
+    assert _rounded(estimator.last_plan) == _rounded(guided_plan)
+    assert any(getattr(record, "guided", None) is True for record in caplog.records)
+    with sessions() as session:
+        frame = session.get(Frame, second)
+        assert frame is not None and frame.status == "done" and frame.people >= 10  # measured with that camera
+
+
+def _rounded(plan: list) -> list[tuple[int, int, int, int, float]]:
+    return [(region.x0, region.y0, region.x1, region.y1, round(region.scale, 9)) for region in plan]

@@ -17,9 +17,10 @@ import numpy as np
 import pytest
 
 from service.pose.pipeline import TopDownPose
-from tests.support.shared import TOWN_CENTRE, model_dir_path
+from tests.support.shared import SHARED_DATA, TOWN_CENTRE, model_dir_path
 
 TOWN = TOWN_CENTRE
+ATRIUM = SHARED_DATA / "mot3d_atrium" / "frames"
 IMAGE_SIZE = (1920, 1080)
 # A few spread-out clip frames: enough people (9-14 annotated each) for recall, fast enough for CI.
 TEST_FRAMES = (0, 30, 60, 90, 120)
@@ -40,6 +41,13 @@ def town_dir() -> Path:
             f"Oxford Town Centre data directory {TOWN} is absent (set POSEMETRY_TEST_DATA_DIR or ../shared/data)"
         )
     return TOWN
+
+
+@pytest.fixture(scope="session")
+def atrium_dir() -> Path:
+    if not ATRIUM.is_dir():
+        pytest.skip(f"atrium frames directory {ATRIUM} is absent (../shared/data/mot3d_atrium/frames)")
+    return ATRIUM
 
 
 def frame_number(path: Path) -> int:

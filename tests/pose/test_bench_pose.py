@@ -1,4 +1,4 @@
-"""`posemetry bench pose` harness on one real frame: both crop modes timed, the report printable."""
+"""`posemetry bench pose` harness on one real frame: both detector plans timed, the split and the report printable."""
 
 from __future__ import annotations
 
@@ -11,18 +11,23 @@ from bench.pose import pose_lines, run_pose_benchmark
 
 
 def test_pose_benchmark_on_one_frame(model_dir: Path, town_dir: Path, tmp_path: Path) -> None:
-    shutil.copyfile(town_dir / "frames" / "clip_000060.jpg", tmp_path / "clip_000060.jpg")
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    shutil.copyfile(town_dir / "frames" / "clip_000060.jpg", frames / "clip_000060.jpg")
+    shutil.copyfile(town_dir / "TownCentre-calibration-ci.txt", tmp_path / "TownCentre-calibration-ci.txt")
     messages: list[str] = []
-    result = run_pose_benchmark(model_dir, tmp_path, ("lightning",), repeats=1, progress=messages.append)
-    assert [(t.pose_model, t.mode) for t in result.timings] == [("lightning", "concurrent"), ("lightning", "loop")]
+    result = run_pose_benchmark(model_dir, frames, ("auto",), repeats=1, progress=messages.append)
+    assert [(t.pose_model, t.plan) for t in result.timings] == [("auto", "uncalibrated"), ("auto", "calibrated")]
     assert messages
     for timing in result.timings:
-        assert len(timing.total_s) == 1 and timing.people[0] >= 5
-        assert timing.detector_s[0] + timing.pose_s[0] <= timing.total_s[0]
-        assert timing.cpu_s[0] > 0
+        assert len(timing.wall_s) == 1 and timing.people[0] >= 5
+        stages = sum(timing.stage_wall_s[stage][0] for stage in ("detector", "tiling", "pose"))
+        assert 0 < stages <= timing.wall_s[0]
+        assert timing.cpu_s[0] > 0 and timing.stage_cpu_s["detector"][0] > 0
+        assert timing.input_pixels[0] > 640 * 384  # more than the plain pass: the plan's other regions
+        assert 0 <= timing.thunder_people[0] <= timing.people[0]
     lines = pose_lines(result)
-    assert any("lightning" in line and "concurrent" in line for line in lines)
-    assert any("<= 80 ms" in line for line in lines)
+    assert any("auto" in line and "calibrated" in line and "<= 100 ms" in line for line in lines)
 
 
 def test_missing_frames_are_an_error(model_dir: Path, tmp_path: Path) -> None:

@@ -66,3 +66,20 @@ def test_no_two_people_of_a_real_frame_share_a_pose(thunder: TopDownPose, town_f
             gap_px = np.hypot(*np.subtract(placed[a].shoulder_px, placed[b].shoulder_px))
             height_px = max(p.box_px[3] - p.box_px[1] for p in (placed[a], placed[b]))  # type: ignore[index]
             assert gap_px > 0.05 * height_px
+
+
+def test_two_boxes_placing_one_person_at_one_point_are_one_person() -> None:
+    """A person cut by the frame's bottom edge, boxed twice: only the head and shoulders are seen in each box, and
+    the arms disagree, but both would be placed from the same shoulder centre: a 0.01 m "violation" otherwise."""
+    upper = _POSE.copy()
+    other = _POSE + np.random.default_rng(1).normal(0, 25, _POSE.shape)  # arms and legs read differently
+    other[5:7] = upper[5:7] + 0.5  # the shoulders agree
+    scores = np.full(17, 0.8)
+    scores[11:] = 0.1  # hips, knees and ankles out of view
+    found = [
+        DetectedPerson((460, 290, 540, 515), 0.8, upper, scores),
+        DetectedPerson((440, 292, 520, 515), 0.4, other, scores),
+    ]
+    people = people_from_detections(found, (1920, 1080))
+    assert people[0].shoulder_px is not None and people[1].shoulder_px is None
+    assert "same pose as person 0" in (people[1].unusable_reason or "")

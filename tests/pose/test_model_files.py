@@ -8,7 +8,15 @@ from pathlib import Path
 import pytest
 
 from service.pose import model_files
-from service.pose.model_files import DETECTOR, LIGHTNING, REGISTRY, THUNDER, ModelFilesError, resolve_models
+from service.pose.model_files import (
+    DETECTOR,
+    LIGHTNING,
+    REGISTRY,
+    THUNDER,
+    ModelFilesError,
+    resolve_choice,
+    resolve_models,
+)
 
 
 def _copy(model_dir: Path, target: Path, *specs: model_files.ModelFile) -> None:
@@ -74,3 +82,11 @@ def test_registry_is_complete() -> None:
     assert set(REGISTRY) == {"detector", "thunder", "lightning"}
     for spec in REGISTRY.values():
         assert len(spec.sha256) == 64 and spec.size_bytes > 1_000_000 and spec.licence == "Apache-2.0"
+
+
+def test_auto_needs_both_movenets_and_names_every_missing_file(tmp_path: Path) -> None:
+    with pytest.raises(ModelFilesError) as caught:
+        resolve_choice(tmp_path, "auto")
+    assert set(caught.value.problems) == {DETECTOR.file_name, THUNDER.file_name, LIGHTNING.file_name}
+    with pytest.raises(ValueError, match="unknown pose model"):
+        resolve_choice(tmp_path, "multipose")  # type: ignore[arg-type]

@@ -14,7 +14,7 @@ def test_defaults(monkeypatch: pytest.MonkeyPatch) -> None:
     for name in ("MODEL_DIR", "POSE_MODEL", "DETECTOR_INPUT_PX", "INFERENCE_THREADS"):
         monkeypatch.delenv(f"POSEMETRY_{name}", raising=False)
     settings = Settings()
-    assert settings.pose_model == "thunder" and settings.detector_input_px == 640
+    assert settings.pose_model == "auto" and settings.detector_input_px == 640
     assert settings.inference_threads is None
     assert settings.model_dir == Path("~/.cache/posemetry/models")
 

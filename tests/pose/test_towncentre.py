@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from .towncentre import TownCentreCalibration, load_annotations, load_calibration
+from bench.towncentre import TownCentreCalibration, load_annotations, load_calibration
 
 FRAMES = set(range(0, 126, 6))
 

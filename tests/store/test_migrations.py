@@ -41,6 +41,7 @@ WEBHOOK_TABLES = {
     "violation_cooldowns",
 }
 TABLES |= WEBHOOK_TABLES
+TABLES |= {"static_spots"}
 
 
 def test_upgrade_builds_the_models_schema(database_url: str) -> None:

@@ -160,7 +160,12 @@ def store_frames(
 
 
 def store_image(
-    sessions: sessionmaker[Session], data: bytes, *, keep_images: bool = False, camera_id: str = "town"
+    sessions: sessionmaker[Session],
+    data: bytes,
+    *,
+    keep_images: bool = False,
+    camera_id: str = "town",
+    timestamp: datetime = datetime(2026, 1, 1, tzinfo=UTC),
 ) -> uuid.UUID:
     """Store a 1920x1080 image frame as the API does, `detecting` until its pose job runs."""
     header = read_header(data)
@@ -171,7 +176,7 @@ def store_image(
         frame, _ = add_image_frame(
             session,
             camera,
-            timestamp=datetime(2026, 1, 1, tzinfo=UTC),
+            timestamp=timestamp,
             content_type=header.content_type,
             width_px=header.width_px,
             height_px=header.height_px,

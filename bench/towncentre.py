@@ -1,8 +1,8 @@
-"""Oxford Town Centre ground truth for tests and measurements: the published calibration and the annotated boxes.
+"""Oxford Town Centre ground truth for benchmarks and tests: the published calibration and the annotated boxes.
 
 Calibration file (`TownCentre-calibration-ci.txt`): focal lengths and principal point in pixels, a rotation
 quaternion (x, y, z, w), a translation and Brown distortion K1, K2, P1, P2. Which convention the numbers follow is
-not stated upstream, so it was determined from the data (see `test_towncentre.py`): of the four readings of
+not stated upstream, so it was determined from the data (see tests/pose/test_towncentre.py): of the four readings of
 (R, T) and the three world axes, only `X_cam = R X_world + T` with world z vertical (up) puts every annotated foot
 in front of the camera and every annotated head top a consistent ~1.75 m above its foot (spread ~5 cm in frame 0);
 the camera then sits ~7.8 m above the street. The ground plane z_world = 0 in camera coordinates (x right, y
@@ -17,6 +17,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from service.geometry import DEFAULT_HEIGHT_M, Calibration
 
 
 @dataclass(frozen=True)
@@ -85,6 +87,40 @@ class TownCentreCalibration:
         depth = -self.ground_rho / (rays @ self.ground_normal)
         depth = np.where(depth > 0, depth, np.nan)
         return rays * depth[:, None]
+
+
+def camera(
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    normal: np.ndarray,
+    rho: float,
+    image_size: tuple[float, float],
+    height_m: float = DEFAULT_HEIGHT_M,
+) -> Calibration:
+    """A camera as the geometry's Calibration, without the per-person arrays of a solve (a known or stored camera)."""
+    none = np.zeros((0, 3))
+    return Calibration(
+        fx=fx,
+        fy=fy,
+        cx=cx,
+        cy=cy,
+        normal=np.asarray(normal, dtype=np.float64),
+        rho=rho,
+        image_size=(float(image_size[0]), float(image_size[1])),
+        height_m=height_m,
+        points_bottom=none,
+        points_top=none,
+        heights=np.zeros(0),
+        inliers=np.zeros(0, dtype=bool),
+    )
+
+
+def as_calibration(town: TownCentreCalibration, height_m: float = DEFAULT_HEIGHT_M) -> Calibration:
+    """The published camera as the geometry's Calibration (lens distortion dropped: it moves no pixel by more than
+    ~2 % of a person's height), e.g. to guide the detector as a solved camera would."""
+    return camera(town.fx, town.fy, town.cx, town.cy, town.ground_normal, town.ground_rho, (1920, 1080), height_m)
 
 
 def load_calibration(path: Path) -> TownCentreCalibration:

@@ -1,0 +1,102 @@
+"""Static spots: a "person" the detector finds in the same place frame after frame is not a person.
+
+Mannequins in a shop window, a poster, a statue: the detector sees a person there in every frame, the pose model
+reads a plausible body, and they would stand as calibration evidence and raise violations with everyone walking
+past. What gives them away is that they never move. Each image frame's boxes are matched to the camera's spots:
+a box overlapping a spot's first box by `SAME_PLACE_IOU` or more is another sighting of it (the spot keeps its
+first box, so a person shuffling slowly cannot drag a spot along with them); any other box opens a new spot. A spot
+seen over `Settings.static_after_s` of frame time, at least `MIN_SIGHTINGS` times, is static, and the people found
+there are marked (`STATIC_REASON`): no evidence, no violation. A spot not seen for `FORGET_AFTER_S` of frame time
+is forgotten (a person who stood still and walked away leaves nothing behind; a detector misses a still object
+for a few frames at most), which also keeps a busy camera's table small: the spots of passers-by last a minute.
+
+Frame time, not the clock: a camera's frames replayed or posted late give the same verdict.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from datetime import datetime, timedelta
+from typing import Final
+
+import numpy as np
+from sqlalchemy import delete, select
+from sqlalchemy.orm import Session
+
+from service.pose.merge import iou_matrix
+from service.store.models import StaticSpot
+
+SAME_PLACE_IOU: Final = 0.8
+"""A still object's boxes in two frames overlap by 0.9 and more (detector jitter of a few pixels); a walking
+person's boxes a fifth of a second apart by less than 0.7."""
+MIN_SIGHTINGS: Final = 3
+FORGET_AFTER_S: Final = 60.0
+
+Box = tuple[float, float, float, float]
+
+
+def match_spots(boxes: Sequence[Box], spots: Sequence[Box]) -> list[int | None]:
+    """For each box, the spot it is another sighting of (an index into `spots`), or None: greedy by overlap."""
+    matched: list[int | None] = [None] * len(boxes)
+    if not boxes or not spots:
+        return matched
+    overlap = iou_matrix(np.asarray(boxes, dtype=float), np.asarray(spots, dtype=float))
+    taken: set[int] = set()
+    for flat in np.argsort(-overlap, axis=None):
+        box, spot = divmod(int(flat), len(spots))
+        if overlap[box, spot] < SAME_PLACE_IOU:
+            break
+        if matched[box] is None and spot not in taken:
+            matched[box] = spot
+            taken.add(spot)
+    return matched
+
+
+def is_static(spot: StaticSpot, static_after_s: float) -> bool:
+    return spot.sightings >= MIN_SIGHTINGS and (spot.last_seen - spot.first_seen).total_seconds() >= static_after_s
+
+
+def observe(
+    session: Session, camera_id: str, at: datetime, boxes: Sequence[Box | None], static_after_s: float
+) -> list[bool]:
+    """Record one frame's boxes (taken at `at`) against the camera's spots; whether each box is at a static spot.
+
+    Boxes that are None (people posted without one) are neither matched nor recorded.
+    """
+    session.execute(
+        delete(StaticSpot).where(
+            StaticSpot.camera_id == camera_id, StaticSpot.last_seen < at - timedelta(seconds=FORGET_AFTER_S)
+        )
+    )
+    spots = list(session.scalars(select(StaticSpot).where(StaticSpot.camera_id == camera_id).order_by(StaticSpot.id)))
+    present = [(index, box) for index, box in enumerate(boxes) if box is not None]
+    matches = match_spots([box for _, box in present], [(s.left_px, s.top_px, s.right_px, s.bottom_px) for s in spots])
+    static = [False] * len(boxes)
+    for (index, box), match in zip(present, matches, strict=True):
+        if match is None:
+            left, top, right, bottom = box
+            session.add(
+                StaticSpot(
+                    camera_id=camera_id,
+                    left_px=left,
+                    top_px=top,
+                    right_px=right,
+                    bottom_px=bottom,
+                    first_seen=at,
+                    last_seen=at,
+                    sightings=1,
+                )
+            )
+            continue
+        spot = spots[match]
+        spot.first_seen, spot.last_seen = min(spot.first_seen, at), max(spot.last_seen, at)
+        spot.sightings += 1
+        static[index] = is_static(spot, static_after_s)
+    session.flush()
+    return static
+
+
+def static_spots(session: Session, camera_id: str, static_after_s: float) -> list[StaticSpot]:
+    """The camera's static spots, longest-standing first."""
+    spots = session.scalars(select(StaticSpot).where(StaticSpot.camera_id == camera_id).order_by(StaticSpot.first_seen))
+    return [spot for spot in spots if is_static(spot, static_after_s)]

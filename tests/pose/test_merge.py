@@ -1,0 +1,60 @@
+"""One box per person from several regions and scales (service/pose/merge.py): pure box arithmetic."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from service.pose.merge import merge_boxes
+
+
+def test_the_same_person_seen_at_two_scales_is_one_box() -> None:
+    boxes = np.array([[100.0, 100.0, 160.0, 300.0], [102.0, 98.0, 161.0, 303.0], [400.0, 100.0, 460.0, 300.0]])
+    merged, scores = merge_boxes(boxes, np.array([0.6, 0.8, 0.5]))
+    assert len(merged) == 2
+    np.testing.assert_allclose(merged[0], boxes[1])  # the more confident view
+    assert scores.tolist() == [0.8, 0.5]
+
+
+def test_an_upper_body_box_inside_a_whole_body_box_is_merged_into_it() -> None:
+    """A cyclist's whole-body box and upper-body box (IoU ~0.5, so NMS alone keeps both): one person, the outer box
+    (it reaches the feet), with the better score."""
+    whole = [900.0, 400.0, 1000.0, 700.0]
+    upper = [905.0, 402.0, 990.0, 560.0]
+    merged, scores = merge_boxes(np.array([upper, whole]), np.array([0.7, 0.5]))
+    assert len(merged) == 1
+    np.testing.assert_allclose(merged[0], whole)
+    assert scores[0] == 0.7
+
+
+def test_a_child_in_front_of_an_adult_is_kept() -> None:
+    adult = [500.0, 300.0, 600.0, 600.0]
+    child = [520.0, 450.0, 580.0, 610.0]  # mostly inside the adult's box, but not sharing its top
+    merged, _ = merge_boxes(np.array([adult, child]), np.array([0.8, 0.6]))
+    assert len(merged) == 2
+
+
+def test_a_loose_box_around_a_group_is_dropped_and_its_people_kept() -> None:
+    group = [100.0, 100.0, 400.0, 300.0]
+    people = [[110.0, 105.0, 170.0, 260.0], [200.0, 150.0, 260.0, 290.0], [300.0, 120.0, 360.0, 280.0]]
+    merged, scores = merge_boxes(np.array([group, *people]), np.array([0.31, 0.5, 0.45, 0.4]))
+    assert len(merged) == 3 and 0.31 not in scores.tolist()
+
+
+boxes = st.tuples(
+    st.floats(0, 1800), st.floats(0, 1000), st.floats(8, 200), st.floats(16, 400), st.floats(0.3, 1.0)
+).map(lambda t: (t[0], t[1], t[0] + t[2], t[1] + t[3], t[4]))
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(boxes, max_size=25))
+def test_merging_is_a_sorted_subset_and_idempotent(found: list[tuple[float, ...]]) -> None:
+    data = np.array(found, dtype=np.float64).reshape(-1, 5)
+    merged, scores = merge_boxes(data[:, :4], data[:, 4])
+    assert len(merged) <= len(data) and list(scores) == sorted(scores, reverse=True)
+    originals = {tuple(row) for row in data[:, :4]}
+    assert all(tuple(box) in originals for box in merged)
+    again, again_scores = merge_boxes(merged, scores)
+    np.testing.assert_array_equal(again, merged)
+    np.testing.assert_array_equal(again_scores, scores)
