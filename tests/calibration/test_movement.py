@@ -100,8 +100,8 @@ def test_a_move_is_found_within_seconds_and_dated_to_its_first_frame(name: str, 
         assert len(outcome.alarms) >= 1
         alarm_frame, change_point = outcome.alarms[0]
         assert move_frame <= alarm_frame <= move_frame + 40  # 20 s at 2 fps
-        # Dated at or a little before the move: no frame of the new view is left measured with the old calibration.
-        assert move_frame - 12 <= change_point <= move_frame
+        # Dated at or before the move (erring early by seconds): no new-view frame keeps an old-epoch result.
+        assert move_frame - 30 <= change_point <= move_frame
 
 
 def test_a_pure_pan_is_invisible_to_people() -> None:
