@@ -66,7 +66,7 @@ def bench_geometry(
     only: str | None = typer.Option(
         None,
         help="Comma-separated experiments: noise-free, table1, table2, table3, outliers, distance, "
-        "surveillance, timing (default: all).",
+        "surveillance, distortion, realistic, timing (default: all).",
     ),
     repeats: int = typer.Option(50, min=1, help="Timed calls per timing case."),
     markdown: Path | None = typer.Option(None, help="Also write the tables as Markdown to this file."),

@@ -1,9 +1,9 @@
 """Geometry benchmark: Monte Carlo accuracy of calibrate() on simulated scenes (paper Sect. 4.1), and its speed.
 
 Only the public API (calibrate, CalibrationError) and the simulator are used,
-so the numbers describe what a caller gets. A method is a named set of
-calibrate() keyword arguments (METHODS): add a variant there and name it in an
-experiment's method list to benchmark it.
+so the numbers describe what a caller gets. Methods (named calibrate()
+configurations) are in bench.methods, metrics in bench.metrics, the camera
+model's coverage experiment in bench.coverage.
 
 Every trial seeds its scene from (seed, experiment name, trial index) alone,
 so results do not depend on --workers or --only, and all settings and methods
@@ -26,33 +26,22 @@ from datetime import UTC, datetime
 from typing import Any, Final
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
-from bench.simulate import Scene, SceneConfig, draw_scene
-from service.geometry import Calibration, CalibrationError, calibrate
+from bench.simulate import SceneConfig, draw_scene
+from service.geometry import CalibrationError, calibrate
 
 from . import paper
-from .paper_literal import calibrate_paper_literal
+from .coverage import MAX_TRIALS, realistic_tables
+from .methods import METHODS, Setting, problem_and_options, run_method, without_outliers
+from .metrics import EXTRA_KEYS, METRIC_KEYS, TrialResult
 from .report import ReportTable, fmt, fmt_pair, yes_no
 
 FloatArray = NDArray[np.float64]
 
-# Named calibrate() keyword arguments. Experiments add height, equal_focal and
-# seed from their scene; a method's own entries take precedence.
-METHODS: dict[str, dict[str, Any]] = {
-    "linear": {"robust": False, "refine": False, "uncertainty": False},
-    "robust": {"robust": True, "refine": False, "uncertainty": False},
-    "default": {},
-    "distortion": {"distortion": True},
-    # The paper's solver as printed (corrected): pixel coordinates, unweighted, people from their depths.
-    "as-printed": {"solver": "paper-literal"},
-}
-
 # The method whose rows the pass/fail targets of the outlier and distance experiments judge.
 TARGET_METHOD: Final = "default"
 
-METRIC_KEYS: Final = ("fx_pct", "fy_pct", "normal_deg", "rho_pct", "points_pct", "dist_pct", "dist_m")
-EXTRA_KEYS: Final = ("inliers_placed_pct", "outliers_placed_pct")
 LABELS: Final = {
     "fx_pct": "fx %",
     "fy_pct": "fy %",
@@ -75,6 +64,7 @@ EXPERIMENTS: Final = (
     "distance",
     "surveillance",
     "distortion",
+    "realistic",
     "timing",
 )
 
@@ -95,103 +85,7 @@ TIMING_CASES: Final = (
 TIMING_TARGETS_MS: Final = {("linear", 1000): 2.0, ("robust", 1000): 50.0}
 
 
-# --- metrics -----------------------------------------------------------------------------------------------------
-
-
-def relative_error_pct(estimate: float, truth: float) -> float:
-    return 100.0 * abs(estimate - truth) / abs(truth)
-
-
-def angle_deg(a: ArrayLike, b: ArrayLike) -> float:
-    """Angle between two vectors; atan2 keeps full precision near 0, where arccos of the dot product loses ~8 digits."""
-    u, v = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
-    return math.degrees(math.atan2(float(np.linalg.norm(np.cross(u, v))), float(u @ v)))
-
-
-def point_errors_pct(estimate: FloatArray, truth: FloatArray) -> FloatArray:
-    """Per-point ||X^ - X|| / ||X||: normalised so near and far people weigh the same (paper Sect. 4.1)."""
-    return 100.0 * np.linalg.norm(estimate - truth, axis=-1) / np.linalg.norm(truth, axis=-1)
-
-
-def distance_errors(estimate: FloatArray, truth: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """(|d^ - d| / d in %, |d^ - d| in metres) over every unordered pair of people."""
-    i, j = np.triu_indices(len(truth), k=1)
-    d_true = np.linalg.norm(truth[i] - truth[j], axis=-1)
-    d_est = np.linalg.norm(estimate[i] - estimate[j], axis=-1)
-    err_m = np.abs(d_est - d_true)
-    return 100.0 * err_m / d_true, err_m
-
-
-@dataclass(frozen=True)
-class TrialResult:
-    """One calibrate() call on one scene. metrics holds METRIC_KEYS and EXTRA_KEYS; NaN where undefined."""
-
-    metrics: Mapping[str, float] = field(default_factory=dict)
-    failed: bool = False
-    error: str = ""
-    # An exception other than CalibrationError: a bug to report, not a failure of the method.
-    unexpected: bool = False
-
-    @classmethod
-    def failure(cls, error: str, unexpected: bool = False) -> TrialResult:
-        return cls({k: math.nan for k in (*METRIC_KEYS, *EXTRA_KEYS)}, True, error, unexpected)
-
-
-def _true_outliers(scene: Scene) -> NDArray[np.bool_]:
-    n = len(scene.points_bottom)
-    outliers = np.asarray(scene.outliers, dtype=bool)
-    return outliers if outliers.shape == (n,) else np.zeros(n, dtype=bool)
-
-
-def evaluate(scene: Scene, cal: Calibration) -> TrialResult:
-    """Errors of a Calibration against the scene's truth.
-
-    People the scene made outliers have no true position on the model, so they
-    never enter the point or distance errors; of the rest, only those the
-    calibration placed count (how many it placed is reported separately).
-    """
-    normal = np.asarray(cal.normal, dtype=np.float64)
-    camera = np.array([cal.fx, cal.fy, cal.rho, *normal], dtype=np.float64)
-    if not np.all(np.isfinite(camera)):
-        return TrialResult.failure("non-finite camera")
-    outliers = _true_outliers(scene)
-    x_b, x_t = np.asarray(cal.points_bottom, dtype=np.float64), np.asarray(cal.points_top, dtype=np.float64)
-    placed = np.asarray(cal.inliers, dtype=bool) & np.all(np.isfinite(x_b), axis=1) & np.all(np.isfinite(x_t), axis=1)
-    use = placed & ~outliers
-    if not use.any():
-        return TrialResult.failure("no true inlier placed")
-    points = np.concatenate(
-        (point_errors_pct(x_b[use], scene.points_bottom[use]), point_errors_pct(x_t[use], scene.points_top[use]))
-    )
-    dist_pct, dist_m = distance_errors(x_b[use], scene.points_bottom[use])
-    metrics = {
-        "fx_pct": relative_error_pct(cal.fx, scene.fx),
-        "fy_pct": relative_error_pct(cal.fy, scene.fy),
-        "normal_deg": angle_deg(normal, scene.normal),
-        "rho_pct": relative_error_pct(cal.rho, scene.rho),
-        "points_pct": float(points.mean()),
-        "dist_pct": float(dist_pct.mean()) if dist_pct.size else math.nan,
-        "dist_m": float(dist_m.mean()) if dist_m.size else math.nan,
-        "inliers_placed_pct": 100.0 * use.sum() / max(int((~outliers).sum()), 1),
-        "outliers_placed_pct": 100.0 * (placed & outliers).sum() / outliers.sum() if outliers.any() else math.nan,
-    }
-    if not all(math.isfinite(metrics[k]) for k in ("fx_pct", "fy_pct", "normal_deg", "rho_pct", "points_pct")):
-        return TrialResult.failure("non-finite result")
-    return TrialResult(metrics)
-
-
 # --- trials --------------------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Setting:
-    """One column of a table: what scenes to draw and how to call calibrate() on them."""
-
-    label: str
-    config: SceneConfig
-    equal_focal: bool = False
-    # Calibrate on the scene's true inliers only: what perfect outlier rejection would achieve.
-    drop_outliers: bool = False
 
 
 @dataclass(frozen=True)
@@ -200,35 +94,6 @@ class Trial:
     methods: tuple[tuple[str, Mapping[str, Any]], ...]
     entropy: int
     key: tuple[int, ...]
-
-
-def without_outliers(scene: Scene) -> Scene:
-    keep = ~_true_outliers(scene)
-    return replace(
-        scene,
-        points_bottom=scene.points_bottom[keep],
-        points_top=scene.points_top[keep],
-        heights=scene.heights[keep],
-        tops_px=scene.tops_px[keep],
-        bottoms_px=scene.bottoms_px[keep],
-        outliers=np.zeros(int(keep.sum()), dtype=bool),
-    )
-
-
-def run_method(scene: Scene, setting: Setting, method: Mapping[str, Any], seed: int) -> TrialResult:
-    kwargs = {"height": setting.config.height_mean_m, "equal_focal": setting.equal_focal, "seed": seed, **method}
-    try:
-        if kwargs.pop("solver", None) == "paper-literal":
-            cal = calibrate_paper_literal(
-                scene.tops_px, scene.bottoms_px, scene.image_size, kwargs["height"], kwargs["equal_focal"]
-            )
-        else:
-            cal = calibrate(scene.tops_px, scene.bottoms_px, scene.image_size, **kwargs)
-    except CalibrationError as exc:
-        return TrialResult.failure(str(exc))
-    except Exception as exc:  # a worker must not die: one bug would lose every other trial's result
-        return TrialResult.failure(f"{type(exc).__name__}: {exc}", unexpected=True)
-    return evaluate(scene, cal)
 
 
 def run_trial(trial: Trial) -> tuple[TrialResult, ...]:
@@ -384,6 +249,9 @@ def _noise_free(ctx: _Context) -> list[ReportTable]:
         Setting(
             f"{w}x{h}, FOV {fov:g}",
             SceneConfig.paper(image_size=(w, h), vfov_deg=(fov, fov), n_people=3, noise_px=0.0, height_std_m=0.0),
+            # The people are exactly the prior's height: with a spread allowed for, three noise-free people
+            # would not pin f (each person's own height is then unknown).
+            problem={"height_std_m": 1e-6},
         )
         for (w, h) in NOISE_FREE_RESOLUTIONS
         for fov in NOISE_FREE_FOVS_DEG
@@ -593,7 +461,7 @@ def _distortion(ctx: _Context) -> list[ReportTable]:
         for k1 in (0.0, 0.05, -0.05, -0.15)
         for noise in (0.0, 2.0)
     ]
-    methods = ("default", "distortion")
+    methods = ("no-lens", "default")
     results = ctx.run("distortion", settings, methods, max_trials=DISTORTION_MAX_TRIALS)
     keys = ("fx_pct", "normal_deg", "rho_pct", "dist_pct")
     table = ReportTable(
@@ -607,8 +475,9 @@ def _distortion(ctx: _Context) -> list[ReportTable]:
         table.end_section()
     table.notes.append(
         f"{min(ctx.options.trials, DISTORTION_MAX_TRIALS)} trials per setting (the k search is the slowest step). "
-        "Mean (median). 'distortion' = calibrate(distortion=True): a one-parameter division model fitted to a "
-        "different (polynomial) lens, kept at k = 0 unless significant."
+        "Mean (median). 'default' estimates a one-parameter division model (a different model from the "
+        "simulated polynomial lens), kept at k = 0 unless significant and material; 'no-lens' = "
+        "SolveOptions(distortion=False)."
     )
     return [table]
 
@@ -624,12 +493,13 @@ def _timing(ctx: _Context) -> list[ReportTable]:
     for method, n in TIMING_CASES:
         config = SceneConfig.paper(noise_px=0.5, height_std_m=0.1, n_people=n)
         scene = draw_scene(config, np.random.default_rng(np.random.SeedSequence(ctx.options.seed, spawn_key=(salt, n))))
-        kwargs = {"height": config.height_mean_m, "equal_focal": False, "seed": 0, **METHODS[method]}
+        problem, solve_options = problem_and_options(scene.image_size, config.height_mean_m, False, METHODS[method], 0)
         target = TIMING_TARGETS_MS.get((method, n))
         target_cell = f"<= {target:g}" if target is not None else "-"
         try:
             times_ms = _time_calls(
-                lambda kw=kwargs, s=scene: calibrate(s.tops_px, s.bottoms_px, s.image_size, **kw), ctx.options.repeats
+                lambda p=problem, o=solve_options, s=scene: calibrate(s.tops_px, s.bottoms_px, p, o),
+                ctx.options.repeats,
             )
         except CalibrationError as exc:
             table.add_row(method, str(n), "failed", "-", target_cell, yes_no(False if target else None))
@@ -659,6 +529,15 @@ def _time_calls(call: Callable[[], object], repeats: int) -> FloatArray:
     return 1e3 * times
 
 
+def _realistic(ctx: _Context) -> list[ReportTable]:
+    """Coverage and accuracy on real cameras' mismatches (bench.coverage), before and after the camera model."""
+    start = time.perf_counter()
+    mapper = map if ctx.executor is None else (lambda f, items: ctx.executor.map(f, items, chunksize=4))
+    tables = realistic_tables(ctx.options.trials, ctx.options.seed, mapper)
+    ctx.progress(f"realistic: {min(ctx.options.trials, MAX_TRIALS)} scenes in {time.perf_counter() - start:.1f} s")
+    return tables
+
+
 _EXPERIMENT_FUNCTIONS: Final[dict[str, Callable[[_Context], list[ReportTable]]]] = {
     "noise-free": _noise_free,
     "table1": _table1,
@@ -668,5 +547,6 @@ _EXPERIMENT_FUNCTIONS: Final[dict[str, Callable[[_Context], list[ReportTable]]]]
     "distance": _distance,
     "surveillance": _surveillance,
     "distortion": _distortion,
+    "realistic": _realistic,
     "timing": _timing,
 }

@@ -26,7 +26,7 @@ from service.calibration.movement import (
     ReferenceCamera,
     frames_evidence,
 )
-from service.geometry import DEFAULT_HEIGHT_STD_M, Calibration
+from service.geometry import DEFAULT_HEIGHT_STD_M, Calibration, CalibrationProblem
 from service.geometry.evidence import solve_evidence
 
 STREET = CrowdConfig(people=36, region_m=(-20.0, 20.0, 2.0, 36.0))
@@ -134,7 +134,8 @@ def run(scenario: Scenario, seed: int) -> Outcome:
     tops, bottoms = _frames(scenario, seed)
     pooled_t = np.vstack(tops[:CALIBRATION_FRAMES])
     pooled_b = np.vstack(bottoms[:CALIBRATION_FRAMES])
-    solve = solve_evidence(pooled_t, pooled_b, scenario.camera.image_size, scenario.crowd.height_m, cap=2000)
+    problem = CalibrationProblem(scenario.camera.image_size, scenario.crowd.height_m)
+    solve = solve_evidence(pooled_t, pooled_b, problem, cap=2000)
     if solve.calibration is None:
         raise RuntimeError(f"{scenario.name}: the calibration failed: {solve.error}")
     cal = solve.calibration

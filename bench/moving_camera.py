@@ -21,7 +21,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from service.geometry.frame import FloatArray
+from service.geometry.vec import FloatArray
 
 UP = np.array([0.0, 0.0, 1.0])
 

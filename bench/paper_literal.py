@@ -14,8 +14,9 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from service.geometry import Calibration, CalibrationError
-from service.geometry.frame import ImageFrame, homogeneous
+from service.geometry.camera import ImageFrame
 from service.geometry.linear import focal_weights, normal_and_rho, scaled_depths, vanishing_point
+from service.geometry.vec import homogeneous
 
 
 def calibrate_paper_literal(

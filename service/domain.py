@@ -125,6 +125,14 @@ class CalibrationValues:
     noise_px: float | None = None
     distortion_k: float | None = None
     duration_s: float | None = None
+    camera_model: dict[str, Any] | None = None
+    """Lens, ankle height, size-dependent noise, sources and inputs (service.calibration.camera_model)."""
+    quality: dict[str, Any] | None = None
+    """What the calibration is worth (service.geometry.quality), as stored."""
+
+    @property
+    def quality_grade(self) -> str | None:
+        return None if self.quality is None else self.quality.get("grade")
 
     @classmethod
     def from_solution(

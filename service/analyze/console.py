@@ -138,25 +138,41 @@ def summary_table(analysis: Analysis, out_dir: Path, total_s: float) -> Table:
         else:
             focal = f"fx {_pm(cal.fx, unc.fx_px if unc else None, '.0f', 'px')}, "
             focal += f"fy {_pm(cal.fy, unc.fy_px if unc else None, '.0f', 'px')}"
-        if analysis.options.focal_px is not None:
-            focal += " (given)"
-        table.add_row("focal length", focal)
-        table.add_row("principal point", f"{cal.cx:.1f}, {cal.cy:.1f} px (image centre)")
+        table.add_row("focal length", f"{focal} ({cal.focal_source})")
+        centre = f"{cal.cx:.1f}, {cal.cy:.1f} px"
+        if unc is not None and cal.principal_point_source != "given":
+            centre += f" ± {unc.cx_px:.0f}, {unc.cy_px:.0f} px"
+        table.add_row("principal point", f"{centre} ({cal.principal_point_source})")
         normal = ", ".join(f"{v:+.4f}" for v in cal.normal)
         table.add_row("ground normal", f"({normal}) ± {unc.normal_deg:.2f}°" if unc else f"({normal})")
         tilt = math.degrees(math.asin(max(-1.0, min(1.0, -float(cal.normal[2])))))
         table.add_row(
             "camera",
-            f"{_pm(cal.rho, unc.rho_m if unc else None, '.2f', 'm')} above the ground, looking {tilt:.1f}° down",
+            f"{_pm(cal.camera_height_m, unc.rho_m if unc else None, '.2f', 'm')} above the ground, "
+            f"looking {tilt:.1f}° down",
         )
-        if analysis.options.distortion:
-            table.add_row(
-                "lens distortion", f"k = {cal.distortion_k:+.4f}" + (" (none found)" if cal.distortion_k == 0 else "")
-            )
+        if cal.lens is not None:
+            lens = ", ".join(f"{v:+.4g}" for v in cal.lens.coefficients)
+        elif cal.distortion_k != 0:
+            lens = f"division model k = {cal.distortion_k:+.4f}"
+        else:
+            lens = "none found" if analysis.options.distortion else "none assumed"
+        table.add_row("lens distortion", f"{lens} ({cal.distortion_source})")
+        quality = cal.quality
+        if quality is not None:
+            grade = {"good": "green", "rough": "yellow", "unreliable": "red"}[quality.grade]
+            text = f"[{grade}]{quality.grade}[/{grade}]: a 2 m distance at {quality.typical_range_m:.0f} m "
+            text += f"± {quality.distance_2sigma_m:.2f} m (2 sigma)"
+            if quality.reasons:
+                text += "; " + "; ".join(quality.reasons)
+            if quality.advice:
+                text += "; would help: " + ", ".join(quality.advice)
+            table.add_row("quality", text)
         if unc is not None:
-            table.add_row(
-                "keypoint noise", f"{unc.noise_px:.1f} px (reprojection rms {cal.reprojection_rms_px:.1f} px)"
-            )
+            noise = f"{unc.noise_px:.1f} px"
+            if unc.noise_per_length > 0:
+                noise += f" + {100 * unc.noise_per_length:.1f} % of a person's size"
+            table.add_row("keypoint noise", f"{noise} (reprojection rms {cal.reprojection_rms_px:.1f} px)")
         table.add_row("placed", f"{analysis.people_placed} of {seen} people placed on the ground")
         threshold = analysis.options.threshold
         table.add_row(

@@ -8,8 +8,10 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Literal, get_args
 
+import numpy as np
+
 from service.domain import feet_to_metres
-from service.geometry import DEFAULT_HEIGHT_M
+from service.geometry import DEFAULT_HEIGHT_M, CalibrationProblem, OpenCVLens
 from service.pose.model_files import POSE_CHOICES
 
 from .errors import AnalyzeError
@@ -52,6 +54,21 @@ def parse_threshold(text: str) -> Threshold:
     return Threshold(value, unit)
 
 
+def parse_numbers(text: str | None, name: str, counts: tuple[int, ...]) -> tuple[float, ...] | None:
+    """'960,540' or '2700' -> floats; None for no text; AnalyzeError naming the option otherwise."""
+    if text is None:
+        return None
+    try:
+        values = tuple(float(part) for part in text.replace(" ", "").split(","))
+    except ValueError:
+        raise AnalyzeError(
+            f"{name} must be {' or '.join(map(str, counts))} comma-separated numbers, got {text!r}"
+        ) from None
+    if len(values) not in counts:
+        raise AnalyzeError(f"{name} must be {' or '.join(map(str, counts))} comma-separated numbers, got {text!r}")
+    return values
+
+
 @dataclass(frozen=True)
 class AnalyzeOptions:
     """One run's choices (the command's options); `checked()` refuses impossible ones before any work starts."""
@@ -65,10 +82,18 @@ class AnalyzeOptions:
     """`thunder`, `lightning` or `auto` (by person size); None: the service's POSEMETRY_POSE_MODEL."""
     threshold: Threshold | str = DEFAULT_THRESHOLD
     """A Threshold, or text such as `6ft` that `checked()` parses."""
-    focal_px: float | None = None
-    """A known focal length: then only the ground plane is solved."""
-    distortion: bool = False
-    """Also estimate one-parameter division-model lens distortion."""
+    focal_px: float | tuple[float, float] | None = None
+    """A known focal length, one value or (fx, fy): then only the ground plane is solved."""
+    principal_point_px: tuple[float, float] | None = None
+    """A known principal point; None: the image centre, as a prior carried into every sigma."""
+    lens: tuple[float, ...] | None = None
+    """Known OpenCV lens coefficients (k1, k2, p1, p2[, k3]): keypoints are undistorted before solving."""
+    camera_height_m: float | None = None
+    """An installer-known camera height above the ground, metres..."""
+    camera_height_std_m: float = 0.1
+    """... and its tolerance (1-sigma)."""
+    distortion: bool = True
+    """Estimate lens distortion when the evidence supports it (ignored with a known lens)."""
     sample_cap: int = DEFAULT_SAMPLE_CAP
     write_images: bool = True
     write_video: bool | None = None
@@ -100,8 +125,20 @@ class AnalyzeOptions:
             raise AnalyzeError(f"the stride must be at least 1, got {self.stride}")
         if self.max_frames is not None and self.max_frames < 1:
             raise AnalyzeError(f"max frames must be at least 1, got {self.max_frames}")
-        if self.focal_px is not None and not (math.isfinite(self.focal_px) and 0 < self.focal_px <= 1e6):
-            raise AnalyzeError(f"the focal length must be a positive number of pixels, got {self.focal_px:g}")
+        focal = () if self.focal_px is None else np.atleast_1d(np.asarray(self.focal_px, dtype=float))
+        if len(focal) not in (0, 1, 2) or not all(math.isfinite(f) and 0 < f <= 1e6 for f in focal):
+            raise AnalyzeError(
+                f"the focal length must be a positive number of pixels (or two: fx, fy), got {self.focal_px}"
+            )
+        if self.principal_point_px is not None and (
+            len(self.principal_point_px) != 2 or not all(math.isfinite(v) for v in self.principal_point_px)
+        ):
+            raise AnalyzeError(f"the principal point must be two numbers of pixels, got {self.principal_point_px}")
+        if self.lens is not None and (len(self.lens) not in (4, 5) or not all(math.isfinite(v) for v in self.lens)):
+            raise AnalyzeError(f"the lens needs 4 or 5 OpenCV coefficients (k1, k2, p1, p2[, k3]), got {self.lens}")
+        for name, value in (("camera height", self.camera_height_m), ("its tolerance", self.camera_height_std_m)):
+            if value is not None and not (math.isfinite(value) and 0 < value <= 1000):
+                raise AnalyzeError(f"the {name} must be a positive number of metres, got {value:g}")
         px = self.detector_input_px
         if px is not None and not (32 <= px <= 2048 and px % 32 == 0):
             raise AnalyzeError(f"the detector input size must be a multiple of 32 from 32 to 2048 px, got {px}")
@@ -118,6 +155,19 @@ class AnalyzeOptions:
         if isinstance(self.threshold, str):
             raise TypeError("unchecked options: call checked() first")
         return self.threshold.metres
+
+    def problem(self, image_size_px: tuple[int, int]) -> CalibrationProblem:
+        """What these options tell the geometry about the camera (options from `checked()`)."""
+        return CalibrationProblem(
+            image_size_px,
+            self.height_m,
+            equal_focal=self.equal_focal,
+            principal_point_px=self.principal_point_px,
+            focal_px=self.focal_px,
+            lens=None if self.lens is None else OpenCVLens.from_coefficients(self.lens),
+            camera_height_m=self.camera_height_m,
+            camera_height_std_m=self.camera_height_std_m,
+        )
 
     def as_record(self) -> dict[str, Any]:
         """JSON-ready, for calibration.json: what produced the numbers."""

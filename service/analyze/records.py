@@ -27,8 +27,11 @@ class CalibrationUncertaintyRecord(BaseModel):
     fy_std_px: float
     normal_std_deg: float
     rho_std_m: float
+    cx_std_px: float = 0.0
+    cy_std_px: float = 0.0
     noise_px: float = Field(description="Keypoint noise estimated from the solve's residuals.")
-    covariance: list[list[float]] = Field(description="5x5 over `covariance_parameters`.")
+    noise_per_length: float = Field(default=0.0, description="Keypoint noise growing with a person's size.")
+    covariance: list[list[float]] = Field(description="Over `covariance_parameters`.")
     covariance_parameters: list[str]
 
 
@@ -51,6 +54,17 @@ class SourceRecord(BaseModel):
     stride: int
 
 
+class QualityRecord(BaseModel):
+    """What the calibration is worth (service.geometry.quality)."""
+
+    grade: Literal["good", "rough", "unreliable"]
+    distance_2sigma_m: float | None = Field(description="Predicted 2-sigma error of a 2 m distance at the range.")
+    typical_range_m: float | None
+    reasons: list[str]
+    advice: list[str]
+    people_needed: int
+
+
 class CalibrationRecord(BaseModel):
     """calibration.json: the camera solved once from every analysed frame, or why it could not be."""
 
@@ -69,6 +83,15 @@ class CalibrationRecord(BaseModel):
     distortion_k: float | None = Field(
         default=None, description="Division-model coefficient on frame-normalised coordinates (0: none)."
     )
+    lens_coefficients: tuple[float, float, float, float, float] | None = Field(
+        default=None, description="The given OpenCV lens (k1, k2, p1, p2, k3), when one was given."
+    )
+    camera_height_m: float | None = Field(default=None, description="Camera height above the ground (rho + ankle).")
+    principal_point_source: str | None = Field(default=None, description="given, estimated or assumed.")
+    focal_source: str | None = Field(default=None, description="given or estimated.")
+    distortion_source: str | None = Field(default=None, description="given, estimated or assumed.")
+    individuals: int | None = Field(default=None, description="Distinct people among the inliers.")
+    quality: QualityRecord | None = None
     uncertainty: CalibrationUncertaintyRecord | None = None
     reprojection_rms_px: float | None = None
     evidence: EvidenceRecord

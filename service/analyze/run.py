@@ -32,7 +32,7 @@ import numpy as np
 from service.domain import PersonIn
 from service.frames.keypoints import people_from_detections
 from service.frames.measure import measure_people
-from service.geometry import Calibration
+from service.geometry import Calibration, SolveOptions
 from service.geometry.evidence import EvidenceSolve, solve_evidence
 from service.pose.types import PoseEstimator
 
@@ -146,15 +146,15 @@ def calibrate_frames(
             "--focal-px, or lower --min-people"
         )
         return evidence, EvidenceSolve(used=np.zeros(0, dtype=int), calibration=None, error=error)
+    # Frame times link one person's observations into one individual (service.geometry.tracks).
+    times = [frames[position].time_s for position, _ in evidence.owners]
     solve = solve_evidence(
         evidence.tops_px,
         evidence.bottoms_px,
-        image_size_px,
-        options.height_m,
-        equal_focal=options.equal_focal,
-        focal_px=options.focal_px,
-        distortion=options.distortion,
+        options.problem(image_size_px),
+        SolveOptions(distortion=options.distortion),
         cap=options.sample_cap,
+        times_s=None if any(t is None for t in times) else np.array(times, dtype=float),
     )
     return evidence, solve
 

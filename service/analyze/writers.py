@@ -18,6 +18,7 @@ import numpy as np
 from service import __version__
 from service.domain import METRES_PER_FOOT
 from service.frames.schemas import FrameResult, PairDistance
+from service.geometry import Quality
 from service.geometry.uncertainty import CANONICAL_PARAMETERS
 
 from .analysis import Analysis, AnalyzedFrame
@@ -29,6 +30,7 @@ from .records import (
     FrameRecord,
     PairRecord,
     PersonRecord,
+    QualityRecord,
     SourceRecord,
 )
 
@@ -130,6 +132,13 @@ def calibration_record(analysis: Analysis) -> CalibrationRecord:
         tilt_deg=float(np.degrees(np.arcsin(np.clip(-normal[2], -1.0, 1.0)))),
         roll_deg=float(np.degrees(np.arctan2(normal[0], -normal[1]))),
         distortion_k=cal.distortion_k,
+        lens_coefficients=None if cal.lens is None else cal.lens.coefficients,
+        camera_height_m=cal.camera_height_m,
+        principal_point_source=cal.principal_point_source,
+        focal_source=cal.focal_source,
+        distortion_source=cal.distortion_source,
+        individuals=cal.individuals,
+        quality=None if cal.quality is None else _quality_record(cal.quality),
         uncertainty=None
         if unc is None
         else CalibrationUncertaintyRecord(
@@ -137,12 +146,26 @@ def calibration_record(analysis: Analysis) -> CalibrationRecord:
             fy_std_px=unc.fy_px,
             normal_std_deg=unc.normal_deg,
             rho_std_m=unc.rho_m,
+            cx_std_px=unc.cx_px,
+            cy_std_px=unc.cy_px,
             noise_px=unc.noise_px,
+            noise_per_length=unc.noise_per_length,
             covariance=np.asarray(unc.covariance, dtype=float).tolist(),
             covariance_parameters=list(CANONICAL_PARAMETERS),
         ),
         reprojection_rms_px=_finite(cal.reprojection_rms_px),
         **common,
+    )
+
+
+def _quality_record(quality: Quality) -> QualityRecord:
+    return QualityRecord(
+        grade=quality.grade,
+        distance_2sigma_m=_finite(quality.distance_2sigma_m),
+        typical_range_m=_finite(quality.typical_range_m),
+        reasons=list(quality.reasons),
+        advice=list(quality.advice),
+        people_needed=quality.people_needed,
     )
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import random
 from dataclasses import dataclass, field
+from datetime import datetime
 from typing import Any, cast
 
 import numpy as np
@@ -16,7 +17,7 @@ from sqlalchemy import BigInteger, ColumnElement, Select, Table, literal, select
 from sqlalchemy.orm import Session
 
 from service.geometry.evidence import SAMPLE_GRID
-from service.store.models import SAMPLE_KEY_SPACE, Camera, Observation
+from service.store.models import SAMPLE_KEY_SPACE, Camera, Frame, Observation
 
 GRID_CELLS = SAMPLE_GRID[0] * SAMPLE_GRID[1]
 _OBSERVATIONS = cast(Table, Observation.__table__)
@@ -24,15 +25,18 @@ _OBSERVATIONS = cast(Table, Observation.__table__)
 
 @dataclass(frozen=True)
 class EvidenceSample:
-    """A calibration's input: shoulder/ankle centres of a balanced sample of usable observations.
+    """A calibration's input: shoulder/ankle centres of a balanced sample of usable observations, with the capture
+    time of each one's frame (seconds from the earliest), so the solve can link one person's observations.
 
-    `queries` and `rows_read` show the cost: rows_read stays near len(self) however much is stored.
+    `queries` and `rows_read` show the sampling's cost: rows_read stays near len(self) however much is stored
+    (the frame times are one primary-key lookup per TIMES_CHUNK observations on top).
     """
 
     observation_ids: list[int]
     cells: list[int]
     tops_px: np.ndarray
     bottoms_px: np.ndarray
+    times_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     queries: int = 0
     rows_read: int = 0
 
@@ -121,6 +125,27 @@ def _cell_page(camera_id: str, epoch: int, cell: int, cursor: _CellCursor, n: in
     return select(*_SAMPLE_COLUMNS).where(*conditions).order_by(key, oid).limit(n)
 
 
+# Observation ids per statement when reading their frames' times: well under SQLite's bound-parameter limit.
+TIMES_CHUNK = 900
+
+
+def frame_times_s(session: Session, observation_ids: list[int]) -> np.ndarray:
+    """Each observation's frame capture time in seconds from the earliest of them (primary-key lookups)."""
+    stamps: dict[int, datetime] = {}
+    for start in range(0, len(observation_ids), TIMES_CHUNK):
+        chunk = observation_ids[start : start + TIMES_CHUNK]
+        stmt = (
+            select(Observation.id, Frame.timestamp)
+            .join(Frame, Frame.id == Observation.frame_id)
+            .where(Observation.id.in_(chunk))
+        )
+        stamps.update((int(oid), stamp) for oid, stamp in session.execute(stmt))
+    if not stamps:
+        return np.zeros(len(observation_ids))
+    first = min(stamps.values())
+    return np.array([(stamps[oid] - first).total_seconds() for oid in observation_ids], dtype=float)
+
+
 def sample_evidence(
     session: Session, camera_id: str, *, cap: int, seed: int = 0, epoch: int | None = None
 ) -> EvidenceSample:
@@ -179,13 +204,16 @@ def sample_evidence(
                 break
             if rank < len(cursors[cell].rows):
                 chosen.append(cursors[cell].rows[rank])
+    ids = [int(r.id) for r in chosen]
+    times_s = frame_times_s(session, ids)
     tops = np.array([(r.shoulder_x_px, r.shoulder_y_px) for r in chosen], dtype=float).reshape(-1, 2)
     bottoms = np.array([(r.ankle_x_px, r.ankle_y_px) for r in chosen], dtype=float).reshape(-1, 2)
     return EvidenceSample(
-        observation_ids=[int(r.id) for r in chosen],
+        observation_ids=ids,
         cells=[int(r.cell) for r in chosen],
         tops_px=tops,
         bottoms_px=bottoms,
+        times_s=times_s,
         queries=queries,
         rows_read=rows_read,
     )

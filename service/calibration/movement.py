@@ -45,7 +45,7 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 from scipy.stats import chi2, norm
 
-from service.geometry.frame import FloatArray
+from service.geometry.vec import FloatArray
 
 PARAMETERS = ("log_focal_scale", "tilt_1_rad", "tilt_2_rad")
 HUBER_C = 2.0

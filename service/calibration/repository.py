@@ -88,6 +88,9 @@ def add_calibration(
         covariance=covariance,
         noise_px=finite_or_none(values.noise_px),
         distortion_k=finite_or_none(values.distortion_k),
+        camera_model=values.camera_model,
+        quality=values.quality,
+        quality_grade=values.quality_grade,
         person_height_m=values.person_height_m,
         people_used=values.people_used,
         inliers=values.inliers,
@@ -157,6 +160,24 @@ def reset_calibration(session: Session, camera_id: str, *, drop_evidence: bool =
     _close_epoch(session, camera, reason, None)
     if drop_evidence:
         session.execute(delete(Observation).where(Observation.camera_id == camera_id))
+    session.flush()
+
+
+def withdraw_current(session: Session, camera_id: str) -> None:
+    """No version of the camera is current any more, in the same epoch with the same people: what a changed camera
+    model needs (its principal point, focal length or lens), since the current solution belongs to another camera
+    model while the people's pixels are as good as before. The next solve is due at once, and the movement test
+    starts again with it (its state is relative to the version it watched)."""
+    camera = existing_camera(session, camera_id, for_update=True)
+    session.execute(
+        update(CalibrationVersion)
+        .where(CalibrationVersion.camera_id == camera_id, CalibrationVersion.is_current == true())
+        .values(is_current=False)
+        .execution_options(synchronize_session="fetch")
+    )
+    session.execute(delete(MovementMonitor).where(MovementMonitor.camera_id == camera_id))
+    camera.evidence_at_last_solve = 0
+    camera.updated_at = utc_now()
     session.flush()
 
 

@@ -26,6 +26,72 @@ class CalibrationUncertainty(BaseModel):
     noise_px: float | None = Field(description="Keypoint noise estimated from the solve's residuals.")
 
 
+Source = Literal["given", "estimated", "assumed"]
+_SOURCE = (
+    "`given`: the camera's settings gave it (exact, sigma 0); `estimated`: the people determined it (with its "
+    "sigma); `assumed`: a default the people do not determine, carried with its prior's sigma into every figure."
+)
+
+
+class PrincipalPointOut(BaseModel):
+    """Where the principal point came from, and its 1-sigma per axis."""
+
+    source: Source = Field(description=_SOURCE)
+    cx_px: float | None
+    cy_px: float | None
+    cx_std_px: float | None
+    cy_std_px: float | None
+
+
+class FocalLengthOut(BaseModel):
+    """Where the focal length came from, and its 1-sigma."""
+
+    source: Source = Field(description=_SOURCE)
+    fx_px: float | None
+    fy_px: float | None
+    fx_std_px: float | None
+    fy_std_px: float | None
+
+
+class DistortionOut(BaseModel):
+    """The lens the solve used: the settings' OpenCV coefficients (`given`), or a one-parameter division model
+    u = u_d / (1 + k |u_d|^2) on coordinates normalised by (W + H) / 4 about the principal point, estimated when
+    the people's evidence supports it and otherwise assumed 0 with its prior's sigma."""
+
+    source: Source = Field(description=_SOURCE)
+    model: Literal["opencv", "division"]
+    coefficients: list[float] | None = Field(default=None, description="OpenCV [k1, k2, p1, p2, k3] when given.")
+    division_k: float | None = None
+    division_k_std: float | None = None
+
+
+class CameraModelOut(BaseModel):
+    """The camera model a solve used and found, and what it was given (see README: the camera model)."""
+
+    principal_point: PrincipalPointOut
+    focal_length: FocalLengthOut
+    distortion: DistortionOut
+    camera_height_m: float | None = Field(description="The camera's height above the ground (rho + ankle height).")
+    ankle_height_m: float = Field(description="Height of the ankle keypoints above the ground the solve assumed.")
+    noise_per_length: float | None = Field(description="Keypoint noise growing with a person's size (relative).")
+    individuals: int = Field(description="Distinct people among the inliers (one walker in many frames counts once).")
+    inputs: dict[str, Any] = Field(description="The camera settings the solve was given (null: not given).")
+
+
+class QualityOut(BaseModel):
+    """What the calibration is worth. `good`: a 2 m distance at the typical range is within 0.4 m (2 sigma);
+    `rough`: within 1 m; `unreliable`: worse, or evidence too thin or narrow to trust its own sigma. An
+    unreliable calibration still measures distances (with its wide sigma) but raises no violations: no events,
+    no `violation.detected` webhooks."""
+
+    grade: Literal["good", "rough", "unreliable"]
+    distance_2sigma_m: float | None = Field(description="Predicted 2-sigma error of a 2 m pair at the range.")
+    typical_range_m: float | None = Field(description="Median ground distance of its people from the camera.")
+    reasons: list[str] = Field(description="Why the grade is not `good`.")
+    advice: list[str] = Field(description="What would improve it.")
+    people_needed: int = Field(description="More distinct people for a well-sampled crowd (0: enough).")
+
+
 class SolvedCamera(BaseModel):
     """The camera a solve found (nulls for a solve that found none)."""
 
@@ -35,6 +101,10 @@ class SolvedCamera(BaseModel):
     cy_px: float | None
     normal: tuple[float, float, float] | None = Field(description="Unit ground normal in the camera frame, up.")
     rho_m: float | None = Field(description="Camera height above the ground plane.")
+    camera_model: CameraModelOut | None = Field(
+        default=None, description="Principal point, focal length and lens: given, estimated or assumed, with sigma."
+    )
+    quality: QualityOut | None = Field(default=None, description="What the calibration is worth (its grade).")
 
 
 # The fields `solution_fields` fills, in the bodies' order.
@@ -51,6 +121,8 @@ def solution_fields(version: CalibrationVersion) -> dict[str, Any]:
         "cy_px": version.cy_px,
         "normal": None if None in normal else normal,
         "rho_m": version.rho_m,
+        "camera_model": CameraModelOut.model_validate(version.camera_model) if version.camera_model else None,
+        "quality": QualityOut.model_validate(version.quality) if version.quality else None,
         "uncertainty": CalibrationUncertainty(
             fx_std_px=version.fx_std_px,
             fy_std_px=version.fy_std_px,
@@ -93,7 +165,9 @@ class CalibrationStatus(BaseModel):
     `uncalibrated`: no usable calibration yet and none due; `people_needed` says how many more usable people
     (both shoulders and both ankles seen, not at the image border) must arrive before the next solve.
     `calibrating`: enough evidence for a solve that has not produced a current calibration yet.
-    `calibrated`: the fields below describe the current version.
+    `calibrated`: the fields below describe the current version; `quality.grade` says what it is worth (an
+    `unreliable` one measures but raises no violations). A solve on fewer than 15 distinct people is too thin to
+    report: it stays in the history as failed (`last_failure` says so), and the camera is not calibrated by it.
 
     Evidence and solves belong to a calibration epoch: 1 for a new camera, and one more every time the camera is
     found to have moved (`reason` camera_moved, with `moved_at`), is reset (`reset`) or changes image size
@@ -120,6 +194,8 @@ class CalibrationStatus(BaseModel):
     cy_px: float | None
     normal: tuple[float, float, float] | None
     rho_m: float | None
+    camera_model: CameraModelOut | None
+    quality: QualityOut | None
     uncertainty: CalibrationUncertainty | None
     person_height_m: float | None
     people_used: int | None

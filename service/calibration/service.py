@@ -13,17 +13,20 @@ from __future__ import annotations
 import logging
 import math
 import time
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from service.calibration import evidence
+from service.calibration.camera_model import model_record, problem_for, quality_record
 from service.calibration.repository import add_calibration, current_calibration
 from service.cameras.repository import CameraNotFoundError
 from service.domain import DONE, FAILED, GONE, SKIPPED, CalibrationValues
 from service.frames.repository import pending_frames
-from service.geometry import Calibration, Uncertainty
-from service.geometry.evidence import solve_evidence
+from service.geometry import Calibration, CalibrationError, CalibrationProblem
+from service.geometry.evidence import EvidenceSolve, solve_evidence
+from service.geometry.quality import MIN_INDIVIDUALS
 from service.observability.logs import JOBS_LOGGER
 from service.settings import Settings
 from service.store.models import CalibrationVersion, Camera, clip_reason
@@ -94,6 +97,25 @@ def at_least_as_supported(new: CalibrationValues, current: CalibrationVersion) -
     return new_fx <= current_fx and _normal_std_deg(new.normal_std_deg) <= _normal_std_deg(current.normal_std_deg)
 
 
+def too_thin(cal: Calibration) -> str | None:
+    """Why a solve rests on too few distinct people to be reported as a calibration (None: it does not).
+
+    The geometry refuses a camera only when the people leave the focal length undetermined; between that and
+    MIN_INDIVIDUALS it grades the solve `unreliable`. The service goes further for thin evidence: a posterior
+    from a dozen people is far from Gaussian, so its sigma cannot be trusted either, and such a camera is not
+    reported as calibrated at all (the solve is kept in the history as failed, and frames wait). Other reasons
+    for `unreliable` (people at one distance, in a corner of the view, a wide predicted error) leave a
+    calibration that measures, with its wide sigma, but raises no alerts.
+    """
+    individuals = cal.individuals or cal.num_inliers
+    if individuals >= MIN_INDIVIDUALS:
+        return None
+    return (
+        f"too thin to calibrate: only {individuals} distinct people agree (at least {MIN_INDIVIDUALS} are needed); "
+        "more people, spread over the view and over distances, or the camera's known intrinsics"
+    )
+
+
 def key_camera_evidence(settings: Settings, camera_id: str) -> int:
     """Key every person the camera stored since its last solve, in short transactions; returns how many."""
     total, chunk = 0, KEY_CHUNK
@@ -131,19 +153,33 @@ def solve_camera(settings: Settings, dispatcher: RedisDispatcher, camera_id: str
         epoch = camera.epoch
         sample = evidence.sample_evidence(session, camera_id, cap=settings.calibration_sample_cap, epoch=epoch)
         evidence_count = int(camera.usable_evidence_count)
-        image_size = (camera.image_width_px, camera.image_height_px)
-        height_m, equal_focal, known_focal_px = camera.person_height_m, camera.equal_focal, camera.known_focal_px
+        height_m = camera.person_height_m
+        problem: CalibrationProblem | None = None
+        problem_error = ""
+        try:
+            problem = problem_for(camera)
+        except (CalibrationError, ValueError) as exc:
+            problem, problem_error = None, str(exc)
 
     started = time.perf_counter()
-    # The sample is already capped and balanced by the store; repeats (still people, a mannequin) count once.
-    solve = solve_evidence(
-        sample.tops_px, sample.bottoms_px, image_size, height_m, equal_focal=equal_focal, focal_px=known_focal_px
-    )
+    if problem is None:
+        solve = EvidenceSolve(np.arange(len(sample)), None, f"the camera's settings: {problem_error}")
+    else:
+        # The sample is already capped and balanced by the store; repeats (still people, a mannequin) count once,
+        # and the frame times link one walker's observations into one individual with one height.
+        solve = solve_evidence(sample.tops_px, sample.bottoms_px, problem, times_s=sample.times_s)
     people_used = solve.people_used
     duration_s = time.perf_counter() - started
-    if solve.calibration is not None:
-        values = CalibrationValues.from_solution(
-            solve.calibration, people_used=people_used, evidence_count=evidence_count, duration_s=duration_s
+    thin = None if solve.calibration is None else too_thin(solve.calibration)
+    if thin is not None:
+        solve = EvidenceSolve(solve.used, None, thin)
+    if solve.calibration is not None and problem is not None:
+        values = replace(
+            CalibrationValues.from_solution(
+                solve.calibration, people_used=people_used, evidence_count=evidence_count, duration_s=duration_s
+            ),
+            camera_model=model_record(solve.calibration, problem),
+            quality=quality_record(solve.calibration.quality),
         )
     else:
         values = CalibrationValues.failure(
@@ -183,41 +219,3 @@ def solve_camera(settings: Settings, dispatcher: RedisDispatcher, camera_id: str
     if values.status != "ok":
         return FAILED
     return DONE if make_current else SKIPPED
-
-
-def calibration_from_version(version: CalibrationVersion, image_size_px: tuple[int, int]) -> Calibration:
-    """The geometry's Calibration for a stored version, enough for `measure` (per-person arrays are empty).
-
-    The stored covariance is the geometry's canonical 5x5 one; a version without a complete covariance gets no
-    Uncertainty, so distances then carry keypoint noise only (its noise estimate is passed to measure separately).
-    """
-    if version.status != "ok" or None in (version.fx_px, version.fy_px, version.cx_px, version.cy_px, version.rho_m):
-        raise ValueError(f"calibration version {version.version} has no solved camera (status {version.status})")
-    uncertainty = None
-    cov = version.covariance
-    if cov is not None and all(v is not None for row in cov for v in row):
-        uncertainty = Uncertainty(
-            fx_px=version.fx_std_px or 0.0,
-            fy_px=version.fy_std_px or 0.0,
-            normal_deg=version.normal_std_deg or 0.0,
-            rho_m=version.rho_std_m or 0.0,
-            covariance=np.asarray(cov, dtype=float),
-            noise_px=version.noise_px or 0.0,
-        )
-    normal = np.array([version.normal_x, version.normal_y, version.normal_z], dtype=float)
-    return Calibration(
-        fx=float(version.fx_px),  # type: ignore[arg-type]
-        fy=float(version.fy_px),  # type: ignore[arg-type]
-        cx=float(version.cx_px),  # type: ignore[arg-type]
-        cy=float(version.cy_px),  # type: ignore[arg-type]
-        normal=normal / np.linalg.norm(normal),
-        rho=float(version.rho_m),  # type: ignore[arg-type]
-        image_size=(float(image_size_px[0]), float(image_size_px[1])),
-        height_m=float(version.person_height_m),
-        points_bottom=np.zeros((0, 3)),
-        points_top=np.zeros((0, 3)),
-        heights=np.zeros(0),
-        inliers=np.zeros(0, dtype=bool),
-        uncertainty=uncertainty,
-        distortion_k=float(version.distortion_k or 0.0),
-    )

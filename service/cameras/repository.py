@@ -18,6 +18,16 @@ from sqlalchemy.orm import Session
 
 from service.store.models import DEFAULT_DISTANCE_THRESHOLD_M, Camera, utc_now
 
+# The camera model the installer may know (issue 16), each nullable.
+CAMERA_MODEL_COLUMNS = (
+    "known_focal_y_px",
+    "principal_point_x_px",
+    "principal_point_y_px",
+    "distortion_coefficients",
+    "camera_height_m",
+    "camera_height_tolerance_m",
+)
+
 
 class CameraNotFoundError(LookupError):
     """The camera id is not configured (the API answers 404)."""
@@ -55,11 +65,15 @@ def upsert_camera(
     distance_threshold_m: float = DEFAULT_DISTANCE_THRESHOLD_M,
     known_focal_px: float | None = None,
     keep_images: bool = False,
+    camera_model: dict[str, Any] | None = None,
     now: datetime | None = None,
 ) -> tuple[Camera, bool]:
     """Create or update a camera's settings; returns (camera, created) so PUT can answer 201 or 200.
 
     person_height_m has no default here: the API owns the default (service.geometry.DEFAULT_HEIGHT_M).
+
+    `camera_model` holds the optional intrinsics columns by name (known_focal_y_px, principal_point_x_px, ...);
+    a column it does not name is cleared, since a PUT replaces the whole settings.
 
     Changing the image size does not touch stored evidence: deciding whether old observations still apply
     (and resetting them with reset_calibration) is the API's policy.
@@ -73,7 +87,12 @@ def upsert_camera(
         "distance_threshold_m": distance_threshold_m,
         "known_focal_px": known_focal_px,
         "keep_images": keep_images,
+        **dict.fromkeys(CAMERA_MODEL_COLUMNS),
+        **(camera_model or {}),
     }
+    unknown = set(values) - set(Camera.__table__.columns.keys())
+    if unknown:
+        raise ValueError(f"not camera columns: {sorted(unknown)}")
     camera = session.get(Camera, camera_id)
     if camera is None:
         try:

@@ -6,8 +6,17 @@ from typing import Annotated
 
 from fastapi import APIRouter, Query, Request, Response, status
 
+from service.calibration.camera_model import known_focal, principal_point
 from service.cameras import repository
-from service.cameras.schemas import CameraList, CameraOut, CameraSettings, StaticSpotList, StaticSpotOut
+from service.cameras.schemas import (
+    DEFAULT_CAMERA_HEIGHT_TOLERANCE_M,
+    CameraList,
+    CameraOut,
+    CameraSettings,
+    Distortion,
+    StaticSpotList,
+    StaticSpotOut,
+)
 from service.cameras.service import apply_settings, require_camera
 from service.cameras.static_spots import static_spots
 from service.domain import CONVERTED_DECIMALS, metres_to_feet
@@ -37,7 +46,13 @@ def camera_out(camera: Camera) -> CameraOut:
         # Rounded on the way out too: cameras stored before conversions were rounded hold 1.8288000000000002.
         distance_threshold_m=round(camera.distance_threshold_m, CONVERTED_DECIMALS),
         distance_threshold_ft=metres_to_feet(camera.distance_threshold_m),
-        known_focal_px=camera.known_focal_px,
+        known_focal_px=known_focal(camera),
+        principal_point_px=principal_point(camera),
+        distortion=None
+        if not camera.distortion_coefficients
+        else Distortion(model="opencv", coefficients=camera.distortion_coefficients),
+        camera_height_m=camera.camera_height_m,
+        camera_height_tolerance_m=camera.camera_height_tolerance_m or DEFAULT_CAMERA_HEIGHT_TOLERANCE_M,
         keep_images=camera.keep_images,
         usable_evidence_count=camera.usable_evidence_count,
         created_at=camera.created_at,
@@ -62,9 +77,12 @@ def put_camera(
     """Create or update a camera (idempotent): 201 when created, 200 when it existed.
 
     A changed image size makes stored evidence meaningless (other pixels), so the calibration is reset, the
-    evidence dropped, and frames still waiting for pose or measuring fail with the reason. A changed height prior,
-    focal assumption or known focal length keeps the evidence and asks for a forced re-solve; the current
-    calibration stays in use until it is replaced.
+    evidence dropped, and frames still waiting for pose or measuring fail with the reason. A changed principal
+    point, known focal length or lens keeps the evidence but withdraws the current calibration (frames wait) and
+    forces a re-solve: the old solution belongs to another camera model. A changed height prior, focal
+    assumption or camera height keeps the evidence and forces a re-solve; the current calibration stays in use
+    until it is replaced. Intrinsics must fit the image (a principal point inside it, a focal length within
+    0.05-50 x its longer side), else 422.
     """
     applied = apply_settings(session, camera_id, body)
     session.commit()

@@ -3,15 +3,36 @@
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Literal
+from typing import Annotated, Literal
 
-from pydantic import BaseModel, Field, StrictBool
+from pydantic import BaseModel, Field, StrictBool, model_validator
+from pydantic_core import PydanticCustomError
 
 from service.domain import feet_to_metres
 from service.geometry import DEFAULT_HEIGHT_M
 from service.http.schemas import Integer, Number, StrictModel
 
 MAX_IMAGE_SIDE_PX = 100_000
+# A focal length outside this many times the image's longer side is a typo, not a lens: 0.05 x is a 170-degree
+# fisheye (beyond what a pinhole with OpenCV's five coefficients describes), 50 x a 2-degree telephoto.
+FOCAL_RANGE_OF_IMAGE_SIDE = (0.05, 50.0)
+DEFAULT_CAMERA_HEIGHT_TOLERANCE_M = 0.1
+
+# The error type of intrinsics that do not fit the image: valid on their own, refused for this image size.
+INTRINSICS_OUT_OF_IMAGE = "intrinsics_out_of_image"
+
+FiniteNumber = Annotated[float, Field(allow_inf_nan=False, strict=True)]
+PositiveFocal = Annotated[float, Field(gt=0, allow_inf_nan=False, strict=True)]
+
+
+class Distortion(StrictModel):
+    """Lens distortion in OpenCV's model (cv2.calibrateCamera's first coefficients) on focal-normalised
+    coordinates about the principal point. Keypoints are undistorted with it before solving and measuring."""
+
+    model: Literal["opencv"] = Field(description="`opencv`: radial k1, k2(, k3) and tangential p1, p2.")
+    coefficients: list[FiniteNumber] = Field(
+        min_length=4, max_length=5, description="[k1, k2, p1, p2] or [k1, k2, p1, p2, k3]."
+    )
 
 
 class DistanceThreshold(StrictModel):
@@ -51,18 +72,74 @@ class CameraSettings(StrictModel):
         default=DEFAULT_DISTANCE_THRESHOLD,
         description="Pairs of people closer than this are violations. Default 6 ft (1.8288 m).",
     )
-    known_focal_px: Number | None = Field(
+    known_focal_px: PositiveFocal | tuple[PositiveFocal, PositiveFocal] | None = Field(
+        default=None,
+        description="The focal length in pixels if known, one value or [fx, fy], each within 0.05-50 x the image's "
+        "longer side (then only the ground plane and what the focal length leaves open are solved).",
+    )
+    principal_point_px: tuple[FiniteNumber, FiniteNumber] | None = Field(
+        default=None,
+        description="The principal point [cx, cy] in pixels (origin top-left), inside the image, if known. People "
+        "alone cannot determine its offset across the horizon, which trades against the focal length and tilt: "
+        "without it the image centre is assumed with a spread of 7.5 % of the image height per axis, carried into "
+        "every sigma.",
+    )
+    distortion: Distortion | None = Field(
+        default=None,
+        description="The lens's OpenCV distortion if known. Without it radial distortion is estimated when the "
+        "people's evidence supports it, and otherwise assumed zero with a prior carried into every sigma.",
+    )
+    camera_height_m: Number | None = Field(
         default=None,
         gt=0,
-        le=1e6,
+        le=1000,
         allow_inf_nan=False,
-        description="The focal length in pixels if known (then only the ground plane is solved).",
+        description="The camera's height above the ground in metres, if the installer knows it: a constraint on the "
+        "metric scale, with `camera_height_tolerance_m`.",
+    )
+    camera_height_tolerance_m: Number = Field(
+        default=DEFAULT_CAMERA_HEIGHT_TOLERANCE_M,
+        gt=0,
+        le=100,
+        allow_inf_nan=False,
+        description="1-sigma tolerance of `camera_height_m`, metres.",
     )
     keep_images: StrictBool = Field(
         default=False,
         description="Keep posted images after their people are found, so frame overlays can be drawn. Off by "
         "default (privacy): an image is deleted once its keypoints are stored.",
     )
+
+    @model_validator(mode="after")
+    def _fits_the_image(self) -> CameraSettings:
+        """Intrinsics are checked against the image they describe, so a typo is a 422, not a silent bad solve."""
+        width, height = self.image_width_px, self.image_height_px
+        if self.principal_point_px is not None:
+            cx, cy = self.principal_point_px
+            if not (0 <= cx <= width and 0 <= cy <= height):
+                raise PydanticCustomError(
+                    INTRINSICS_OUT_OF_IMAGE,
+                    f"principal_point_px ({cx:g}, {cy:g}) lies outside the {width}x{height} image",
+                )
+        focal = self.known_focal_xy_px
+        if focal is not None:
+            low, high = (factor * max(width, height) for factor in FOCAL_RANGE_OF_IMAGE_SIDE)
+            if not all(low <= f <= high for f in focal):
+                raise PydanticCustomError(
+                    INTRINSICS_OUT_OF_IMAGE,
+                    f"known_focal_px {focal[0]:g}, {focal[1]:g} must lie within {low:g}-{high:g} px for a "
+                    f"{width}x{height} image ({FOCAL_RANGE_OF_IMAGE_SIDE[0]:g}-{FOCAL_RANGE_OF_IMAGE_SIDE[1]:g} "
+                    "x its longer side)",
+                )
+        return self
+
+    @property
+    def known_focal_xy_px(self) -> tuple[float, float] | None:
+        if self.known_focal_px is None:
+            return None
+        if isinstance(self.known_focal_px, tuple):
+            return self.known_focal_px
+        return (self.known_focal_px, self.known_focal_px)
 
 
 class CameraOut(BaseModel):
@@ -75,7 +152,11 @@ class CameraOut(BaseModel):
     equal_focal: bool
     distance_threshold_m: float
     distance_threshold_ft: float
-    known_focal_px: float | None
+    known_focal_px: float | tuple[float, float] | None
+    principal_point_px: tuple[float, float] | None
+    distortion: Distortion | None
+    camera_height_m: float | None
+    camera_height_tolerance_m: float
     keep_images: bool
     usable_evidence_count: int = Field(description="Stored people usable as calibration evidence.")
     created_at: datetime

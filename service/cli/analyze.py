@@ -18,8 +18,20 @@ def analyze(
         None, help="thunder, lightning or auto (by person size; default: POSEMETRY_POSE_MODEL)."
     ),
     threshold: str = typer.Option("6ft", help="Violation distance with its unit, e.g. 6ft or 1.8m."),
-    focal_px: float | None = typer.Option(None, help="Known focal length in pixels: only the ground is solved."),
-    distortion: bool = typer.Option(False, "--distortion/--no-distortion", help="Also estimate lens distortion."),
+    focal_px: str | None = typer.Option(
+        None, help="Known focal length in pixels, f or fx,fy: only the ground is solved."
+    ),
+    principal_point: str | None = typer.Option(
+        None, help="Known principal point cx,cy in pixels (default: the image centre, as a prior)."
+    ),
+    lens: str | None = typer.Option(
+        None, help="Known OpenCV lens coefficients k1,k2,p1,p2[,k3] (normalised by the focal length)."
+    ),
+    camera_height: float | None = typer.Option(None, help="Known camera height above the ground, metres."),
+    camera_height_tolerance: float = typer.Option(0.1, help="1-sigma tolerance of --camera-height, metres."),
+    distortion: bool = typer.Option(
+        True, "--distortion/--no-distortion", help="Estimate lens distortion where the people show it."
+    ),
     images: bool = typer.Option(True, "--images/--no-images", help="Write an overlay and a map per frame."),
     video: bool | None = typer.Option(
         None, "--video/--no-video", help="Write overlay.mp4 and topdown.mp4 (default: for a video input)."
@@ -44,8 +56,15 @@ def analyze(
 ) -> None:
     """Offline: pose on every frame, one calibration from all of them, distances per frame, pictures and a video."""
     from service.analyze.console import run_command
-    from service.analyze.options import AnalyzeOptions
+    from service.analyze.errors import AnalyzeError
+    from service.analyze.options import AnalyzeOptions, parse_numbers
 
+    try:
+        focal = parse_numbers(focal_px, "--focal-px", (1, 2))
+        centre = parse_numbers(principal_point, "--principal-point", (2,))
+        coefficients = parse_numbers(lens, "--lens", (4, 5))
+    except AnalyzeError as exc:
+        raise typer.BadParameter(str(exc)) from None
     options = AnalyzeOptions(
         height_m=height,
         equal_focal=equal_focal,
@@ -53,7 +72,11 @@ def analyze(
         max_frames=max_frames,
         pose_model=pose_model,
         threshold=threshold,
-        focal_px=focal_px,
+        focal_px=None if focal is None else (focal[0] if len(focal) == 1 else (focal[0], focal[1])),
+        principal_point_px=None if centre is None else (centre[0], centre[1]),
+        lens=coefficients,
+        camera_height_m=camera_height,
+        camera_height_std_m=camera_height_tolerance,
         distortion=distortion,
         write_images=images,
         write_video=video,

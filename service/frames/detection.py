@@ -19,8 +19,8 @@ import uuid
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
+from service.calibration.camera_model import calibration_from_version
 from service.calibration.repository import current_calibration
-from service.calibration.service import calibration_from_version
 from service.cameras.static_spots import observe
 from service.domain import DONE, FAILED, GONE, SKIPPED, PersonIn
 from service.frames.images import ImageError, decode

@@ -84,6 +84,7 @@ def measure_people(
     distance_threshold_m: float,
     calibration_version: int = 0,
     noise_px: float | None = None,
+    calibration_grade: str | None = None,
 ) -> FrameComputation:
     """Place every person (ankles when seen, else shoulders), measure all pairs i < j, and flag violations.
 
@@ -95,7 +96,8 @@ def measure_people(
     A pair is a violation when its distance is strictly below `distance_threshold_m`; pairs involving a person
     who could not be placed (no shoulder and no ankle, or a ray missing the ground) have null distances and are
     never violations. `noise_px` is the keypoint noise for the distance uncertainties (default: the one the
-    calibration estimated).
+    calibration estimated). With a calibration graded `unreliable` the pairs are measured but none is a
+    violation: its verdicts are not trusted, so they raise no events and no alerts (`alerts_suppressed`).
     """
     points = [centres(person) for person in people]
     tops = np.array([s if s is not None else _NAN_POINT for s, _ in points], dtype=float).reshape(-1, 2)
@@ -142,6 +144,11 @@ def measure_people(
         and pair["distance_m"] < distance_threshold_m
         and not (static[pair["i"]] or static[pair["j"]])
     ]
+    suppressed = None
+    if calibration_grade == "unreliable":
+        if close:
+            suppressed = f"{len(close)} pairs under the threshold, but the calibration is graded unreliable"
+        close = []
     violations = [
         ViolationIn(person_i=p["i"], person_j=p["j"], distance_m=p["distance_m"], distance_std_m=p["distance_std_m"])
         for p in close
@@ -152,5 +159,7 @@ def measure_people(
         "people": placed_people,
         "pairs": pairs,
         "violations": close,
+        "calibration_grade": calibration_grade,
+        "alerts_suppressed": suppressed,
     }
     return FrameComputation(document=document, violations=violations)

@@ -134,13 +134,24 @@ class PairDistance(BaseModel):
 
 
 class FrameResult(BaseModel):
-    """Positions, every pair's distance and the pairs closer than the camera's threshold."""
+    """Positions, every pair's distance and the pairs closer than the camera's threshold.
+
+    A calibration graded `unreliable` still measures every pair (with its wide `distance_std_m`), but its
+    verdicts are not trusted: `violations` is empty, no violation event is stored and no webhook raised, and
+    `alerts_suppressed` says why.
+    """
 
     calibration_version: int
     distance_threshold_m: float
     people: list[PersonPosition]
     pairs: list[PairDistance]
     violations: list[PairDistance]
+    calibration_grade: Literal["good", "rough", "unreliable"] | None = Field(
+        default=None, description="The calibration's quality grade (null for versions stored before grades)."
+    )
+    alerts_suppressed: str | None = Field(
+        default=None, description="Why pairs under the threshold raised no violations (an unreliable calibration)."
+    )
 
 
 class DetectedPersonOut(BaseModel):

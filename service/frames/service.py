@@ -18,8 +18,9 @@ from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session
 
 from service.calibration import moves
+from service.calibration.camera_model import calibration_from_version
 from service.calibration.repository import current_calibration, movement_state
-from service.calibration.service import calibration_due, calibration_from_version
+from service.calibration.service import calibration_due
 from service.domain import DONE, FAILED, GONE, PENDING, FrameOutcome, PersonIn, StoredCentres
 from service.frames.keypoints import person_from_centres, person_from_keypoints
 from service.frames.measure import FrameComputation, measure_people
@@ -115,6 +116,7 @@ def compute_frame_result(
         distance_threshold_m=distance_threshold_m,
         calibration_version=calibration.version,
         noise_px=calibration.noise_px or 0.0,
+        calibration_grade=calibration.quality_grade,
     )
 
 

@@ -1,6 +1,6 @@
-"""One-parameter division-model lens distortion (Fei et al. 2021, Appendix B; Fitzgibbon 2001).
+"""Estimating one-parameter division-model lens distortion (Fei et al. 2021, Appendix B; Fitzgibbon 2001).
 
-Model, in the normalised coordinates of frame.py: the undistorted point is
+Model (service.geometry.camera), in frame-normalised coordinates: the undistorted point is
 u = u_d / (1 + k r_d^2) with r_d = |u_d|, so in homogeneous form
 u~ ~ (u_d, 1 + k r_d^2) = u~_d + k z, z = (0, 0, r_d^2). Working in normalised
 rather than pixel units keeps k of order 0.1 for real lenses instead of 1e-7.
@@ -26,7 +26,11 @@ z_T x z_B = 0); formulations differ only in how they weight those rows. We there
 4. keep k = 0 unless the best non-zero candidate lowers S by more than a
    chi^2_1 significance threshold in units of the residual variance: one
    extra parameter always lowers S, and a noise-fitted k costs more focal
-   accuracy than a small unmodelled distortion.
+   accuracy than a small unmodelled distortion. The threshold is the larger
+   of the 99 % likelihood-ratio test's 6.6 and BIC's ln n: with thousands of
+   people any small unmodelled effect (lean, keypoint bias) becomes
+   "significant" at a fixed level, and BIC's penalty grows with the evidence.
+   calibrate() then also asks the lens to matter (see `material`).
 
 Monte-Carlo evaluation (20 people, 0.5 px noise, exact division-model scenes,
 k in {-0.1, -0.05, 0, 0.05}): median |k error| 4e-3 to 6e-3 for the Sampson
@@ -50,9 +54,10 @@ import scipy.linalg
 from numpy.typing import ArrayLike
 from scipy.optimize import minimize_scalar
 
+from .camera import lifted, undistort
 from .errors import CalibrationError
-from .frame import FloatArray, homogeneous
 from .linear import RANK_TOL
+from .vec import FloatArray, homogeneous
 
 # |k| r_max^2 stays below this: at -1 the model maps the outermost points to
 # infinity, at +1 it stops being monotone in the radius (two radii, one image).
@@ -65,36 +70,6 @@ PAPER_MAX_PEOPLE = 60
 _GRID_POINTS = 33
 _IRLS_ITERATIONS = 3
 _ROOT_IMAG_TOL = 1e-8
-
-
-def undistort(points_n: ArrayLike, k: float) -> FloatArray:
-    """Distorted -> undistorted normalised points; NaN where 1 + k r^2 <= 0 (beyond the model's horizon)."""
-    p = np.asarray(points_n, dtype=np.float64)
-    denom = 1.0 + k * np.sum(p * p, -1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where((denom > 0)[..., None], p / denom[..., None], np.nan)
-
-
-def distort(points_n: ArrayLike, k: float) -> FloatArray:
-    """Undistorted -> distorted normalised points (inverse of undistort); NaN where no real preimage exists.
-
-    r_d solves k r_u r_d^2 - r_d + r_u = 0; of its two roots only the one
-    continuous at k = 0 lies on the monotone branch (k r_d^2 < 1), and it is
-    written as 2 r_u / (1 + sqrt(1 - 4 k r_u^2)) to stay exact for k -> 0 and
-    r_u -> 0. For k > 0 points beyond r_u = 1 / (2 sqrt(k)) have no preimage.
-    """
-    p = np.asarray(points_n, dtype=np.float64)
-    disc = 1.0 - 4.0 * k * np.sum(p * p, -1)
-    with np.errstate(invalid="ignore"):
-        factor = np.where(disc >= 0, 2.0 / (1.0 + np.sqrt(np.maximum(disc, 0.0))), np.nan)
-    return p * factor[..., None]
-
-
-def lifted(points_n: FloatArray, k: float | FloatArray) -> FloatArray:
-    """Homogeneous undistorted points (u_d, 1 + k r_d^2), (..., N, 3); k broadcasts as (...,)."""
-    kk = np.asarray(k, dtype=np.float64)[..., None]
-    w = 1.0 + kk * np.sum(points_n * points_n, -1)
-    return np.concatenate((np.broadcast_to(points_n, w.shape + (2,)), w[..., None]), -1)
 
 
 def paper_pencil(
@@ -265,11 +240,16 @@ def estimate_division_k(
         k, reason = 0.0, "no admissible non-zero candidate"
     elif dof == 0:
         k, reason = float(candidates[best]), "3 people determine k exactly; no redundancy to test it"
-    elif costs[zero] - costs[best] > significance_chi2 * costs[best] / dof:
+    elif costs[zero] - costs[best] > max(significance_chi2, np.log(n)) * costs[best] / dof:
         k, reason = float(candidates[best]), "lowest Sampson cost, significantly below k = 0"
     else:
         k, reason = 0.0, "no candidate lowers the Sampson cost significantly below k = 0"
     return DivisionEstimate(k, tuple(candidates.tolist()), tuple(costs.tolist()), (-k_max, k_max), reason)
+
+
+def corner_shift_n(k: float, radius_max_n: float) -> float:
+    """How far (normalised units) the division model moves a point at radius radius_max_n."""
+    return abs(radius_max_n - float(undistort(np.array([[radius_max_n, 0.0]]), k)[0, 0]))
 
 
 def _check_lines(tops: FloatArray, bottoms: FloatArray) -> None:

@@ -23,7 +23,8 @@ from scipy.spatial import cKDTree
 from .calibrate import calibrate
 from .calibration import Calibration
 from .errors import CalibrationError
-from .priors import DEFAULT_HEIGHT_M
+from .problem import CalibrationProblem, SolveOptions
+from .tracks import link_tracks
 
 # Pose-model jitter on a still person is 1-3 px at 1080p; this is comfortably above it as a share of the image.
 DEFAULT_RADIUS_FRACTION = 0.002
@@ -145,37 +146,33 @@ class EvidenceSolve:
 def solve_evidence(
     tops_px: np.ndarray,
     bottoms_px: np.ndarray,
-    image_size_px: tuple[float, float],
-    height_m: float = DEFAULT_HEIGHT_M,
+    problem: CalibrationProblem,
+    options: SolveOptions | None = None,
     *,
-    equal_focal: bool = True,
-    focal_px: float | None = None,
-    distortion: bool = False,
     cap: int | None = None,
-    seed: int = 0,
+    times_s: np.ndarray | None = None,
 ) -> EvidenceSolve:
     """Calibrate once on usable observations pooled from many frames: the one path from evidence to a camera.
 
-    Repeats are collapsed first (see the module docstring), then, with `cap`, a spatially balanced sample of at
-    most `cap` is drawn from what remains (`balanced_sample`), and `calibrate` runs on it. A solve that cannot
-    produce a camera returns its reason instead of raising, because callers record failures with the evidence
-    they were given (the calibration worker keeps them in the history; `posemetry analyze` reports them).
+    With `times_s` (each observation's frame time), observations are first linked into individuals
+    (service.geometry.tracks), so one person seen in many frames has one height. Repeats are collapsed (see
+    the module docstring), then, with `cap`, a spatially balanced sample of at most `cap` is drawn from what
+    remains (`balanced_sample`, seeded by options.seed), and `calibrate` runs on it. A solve that cannot
+    produce a camera returns its reason instead of raising, because callers record failures with the
+    evidence they were given (the calibration worker keeps them in the history; `posemetry analyze` reports
+    them).
     """
+    options = SolveOptions() if options is None else options
     tops = np.asarray(tops_px, dtype=float).reshape(-1, 2)
     bottoms = np.asarray(bottoms_px, dtype=float).reshape(-1, 2)
+    tracks = None if times_s is None else link_tracks(times_s, tops, bottoms, height_m=problem.height_m)
+    image_size_px = problem.image_size_px
     used = collapse_repeats(tops, bottoms, repeat_radius_px(image_size_px))
     if cap is not None:
-        used = used[balanced_sample(bottoms[used], image_size_px, cap, seed=seed)]
+        used = used[balanced_sample(bottoms[used], image_size_px, cap, seed=options.seed or 0)]
     try:
         solution = calibrate(
-            tops[used],
-            bottoms[used],
-            image_size_px,
-            height_m,
-            equal_focal=equal_focal,
-            focal_px=focal_px,
-            distortion=distortion,
-            seed=seed,
+            tops[used], bottoms[used], problem, options, tracks=None if tracks is None else tracks[used]
         )
     except CalibrationError as exc:
         return EvidenceSolve(used, None, str(exc))

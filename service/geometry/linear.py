@@ -23,8 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import CalibrationError
-from .frame import FloatArray, homogeneous
-from .vec import cross, dot
+from .vec import FloatArray, cross, dot, homogeneous
 
 # Relative size below which a singular value or determinant counts as zero.
 RANK_TOL = 1e-10

@@ -21,11 +21,11 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .calibration import Calibration
-from .frame import FloatArray
+from .model import tangent_basis
 from .priors import DEFAULT_HEIGHT_STD_M
 from .reconstruct import intersect_plane, pairwise_distances
-from .refine import tangent_basis
-from .uncertainty import canonical_camera
+from .uncertainty import CANONICAL_PARAMETERS, canonical_camera
+from .vec import FloatArray
 
 # Finite-difference steps of the keypoint-noise and height-spread terms.
 _KEYPOINT_STEP_PX = 1e-4
@@ -51,10 +51,8 @@ class _Variants:
     """K versions of the camera and of the people, evaluated together: the measurement and its finite
     differences (each perturbs one parameter) cost one vectorised pass instead of K small ones."""
 
-    fx_px: FloatArray  # (K,)
-    fy_px: FloatArray  # (K,)
+    cameras: FloatArray  # (K, 8) canonical parameters (fx, fy, t1, t2, rho, cx, cy, k)
     normal: FloatArray  # (K, 3)
-    rho_m: FloatArray  # (K,)
     height_m: FloatArray  # (K,)
     tops_px: FloatArray  # (K, N, 2)
     bottoms_px: FloatArray  # (K, N, 2)
@@ -63,64 +61,54 @@ class _Variants:
 def _positions(cal: Calibration, v: _Variants, from_ankles: FloatArray, height_scale: FloatArray) -> FloatArray:
     """(K, N, 3) camera-frame ground points: the ankle ray meets the plane; without ankles, the shoulder ray
     meets the plane raised by the height prior and the point is lowered back onto the ground."""
-    chosen = undistort_px(cal, np.where(from_ankles[:, None], v.bottoms_px, v.tops_px))
+    chosen = np.where(from_ankles[:, None], v.bottoms_px, v.tops_px)
+    if cal.lens is not None:
+        chosen = cal.camera.undistort_px(chosen)  # the user's lens is exact: no variants
+    c = v.cameras[:, None, :]
+    scale_px = (cal.image_size[0] + cal.image_size[1]) / 4.0
+    rel = np.stack(((chosen[..., 0] - c[..., 5]) / scale_px, (chosen[..., 1] - c[..., 6]) / scale_px), -1)
+    k = c[..., 7]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        denom = 1.0 + k * np.sum(rel * rel, -1)
+        rel = np.where((denom > 0)[..., None], rel / denom[..., None], np.nan)
     ray = np.stack(
-        (
-            (chosen[..., 0] - cal.cx) / v.fx_px[:, None],
-            (chosen[..., 1] - cal.cy) / v.fy_px[:, None],
-            np.ones(chosen.shape[:-1]),
-        ),
-        -1,
+        (rel[..., 0] * scale_px / c[..., 0], rel[..., 1] * scale_px / c[..., 1], np.ones(chosen.shape[:-1])), -1
     )
     lift_m = np.where(from_ankles, 0.0, v.height_m[:, None] * height_scale[None, :])  # (K, N)
     normal = v.normal[:, None, :]
-    x = intersect_plane(ray, normal, v.rho_m[:, None] - lift_m)
+    x = intersect_plane(ray, normal, v.cameras[:, 4:5] - lift_m)
     return x - lift_m[..., None] * normal
 
 
-def _camera_steps(cal: Calibration) -> FloatArray:
-    """Finite-difference steps in the canonical parameters (fx_px, fy_px, t1_rad, t2_rad, rho_m)."""
-    return np.array([1e-6 * cal.fx, 1e-6 * cal.fy, 1e-7, 1e-7, 1e-7 * cal.rho])
+def _camera_steps(cal: Calibration, count: int) -> FloatArray:
+    """Finite-difference steps in the first `count` canonical parameters."""
+    return np.array([1e-6 * cal.fx, 1e-6 * cal.fy, 1e-7, 1e-7, 1e-7 * cal.rho, 1e-4, 1e-4, 1e-7])[:count]
 
 
-def _variants(cal: Calibration, tops_px: FloatArray, bottoms_px: FloatArray, with_camera: bool) -> _Variants:
-    """The base camera, then (if with_camera) one step in each canonical parameter, then the people's keypoints
-    moved along x and along y, then the height prior raised."""
-    c0 = np.array([cal.fx, cal.fy, 0.0, 0.0, cal.rho])
+def _variants(cal: Calibration, tops_px: FloatArray, bottoms_px: FloatArray, count: int) -> _Variants:
+    """The base camera, then one step in each of the first `count` canonical parameters, then the people's
+    keypoints moved along x and along y, then the height prior raised."""
+    c0 = np.array([cal.fx, cal.fy, 0.0, 0.0, cal.rho, cal.cx, cal.cy, cal.distortion_k])
+    cameras = [c0]
+    steps = _camera_steps(cal, count)
+    for k in range(count):
+        c = c0.copy()
+        c[k] += steps[k]
+        cameras.append(c)
+    cameras += [c0, c0, c0]
     basis = tangent_basis(cal.normal)
-    base = canonical_camera(c0, cal.normal, basis)
-    cameras = [base]
-    if with_camera:
-        steps = _camera_steps(cal)
-        for k in range(5):
-            c = c0.copy()
-            c[k] += steps[k]
-            cameras.append(canonical_camera(c, cal.normal, basis))
-    cameras += [base, base, base]
+    normals = [canonical_camera(c, cal.normal, basis)[2] for c in cameras]
     moved_x, moved_y = np.array([_KEYPOINT_STEP_PX, 0.0]), np.array([0.0, _KEYPOINT_STEP_PX])
     shifts = [np.zeros(2)] * (len(cameras) - 3) + [moved_x, moved_y, np.zeros(2)]
     heights = np.full(len(cameras), cal.height_m)
     heights[-1] += _HEIGHT_STEP_M
     return _Variants(
-        fx_px=np.array([camera[0] for camera in cameras]),
-        fy_px=np.array([camera[1] for camera in cameras]),
-        normal=np.array([camera[2] for camera in cameras]),
-        rho_m=np.array([camera[3] for camera in cameras]),
+        cameras=np.array(cameras),
+        normal=np.array(normals),
         height_m=heights,
         tops_px=tops_px[None] + np.array(shifts)[:, None, :],
         bottoms_px=bottoms_px[None] + np.array(shifts)[:, None, :],
     )
-
-
-def undistort_px(cal: Calibration, points_px: FloatArray) -> FloatArray:
-    """Division-model undistortion around the principal point (identity when distortion_k == 0)."""
-    if cal.distortion_k == 0.0:
-        return points_px
-    from .distortion import undistort
-    from .frame import ImageFrame
-
-    frame = ImageFrame.from_size(cal.image_size, (cal.cx, cal.cy))
-    return frame.to_pixels(undistort(frame.normalise(points_px), cal.distortion_k))
 
 
 def measure(
@@ -146,8 +134,8 @@ def measure(
     std_m = np.broadcast_to(np.asarray(height_std_m, dtype=np.float64), from_ankles.shape)
     unc = cal.uncertainty
     sigma_px = (unc.noise_px if unc is not None else 0.0) if noise_px is None else noise_px
-    with_camera = unc is not None
-    xs = _positions(cal, _variants(cal, tops_px, bottoms_px, with_camera), from_ankles, scale)
+    count = 0 if unc is None else min(len(unc.covariance), len(CANONICAL_PARAMETERS))
+    xs = _positions(cal, _variants(cal, tops_px, bottoms_px, count), from_ankles, scale)
     x0 = xs[0]
     dist = pairwise_distances(x0)
     n = len(x0)
@@ -156,18 +144,22 @@ def measure(
     var = np.zeros((n, n))
 
     if unc is not None:
-        # Calibration: each person's sensitivity to the 5 canonical parameters.
-        dx_dc = np.moveaxis((xs[1:6] - x0) / _camera_steps(cal)[:, None, None], 0, -1)  # (N, 3, 5)
+        # Calibration: each person's sensitivity to the canonical parameters.
+        dx_dc = np.moveaxis((xs[1 : count + 1] - x0) / _camera_steps(cal, count)[:, None, None], 0, -1)
         g = np.einsum("ijx,ixk->ijk", unit, dx_dc) - np.einsum("ijx,jxk->ijk", unit, dx_dc)
-        var += np.einsum("ijk,kl,ijl->ij", g, unc.covariance, g)
+        var += np.einsum("ijk,kl,ijl->ij", g, np.asarray(unc.covariance)[:count, :count], g)
 
-    # Keypoint noise on the point each person is placed from, and height spread for shoulder placement.
+    # Keypoint noise on the point each person is placed from (growing with their size, see
+    # service.geometry.posterior), and height spread for shoulder placement.
     dx_dpx = (xs[-3:-1] - x0) / _KEYPOINT_STEP_PX  # (2, N, 3): along x, along y
-    per_person = sigma_px**2 * np.einsum("ani,anj->nij", dx_dpx, dx_dpx)
+    per_length = 0.0 if unc is None else unc.noise_per_length
+    length_px = np.nan_to_num(np.hypot(*(tops_px - bottoms_px).T), nan=0.0)
+    sigma2 = sigma_px**2 + (per_length * length_px) ** 2
+    per_person = sigma2[:, None, None] * np.einsum("ani,anj->nij", dx_dpx, dx_dpx)
     # The last variant raises the prior by one step, each person's shoulders by `scale` steps.
     dx_dh = (xs[-1] - x0) / (_HEIGHT_STEP_M * scale[:, None])
     per_person += (std_m**2 * np.where(from_ankles, 0.0, 1.0))[:, None, None] * np.einsum("ni,nj->nij", dx_dh, dx_dh)
     var += np.einsum("ijx,ixy,ijy->ij", unit, per_person, unit) + np.einsum("ijx,jxy,ijy->ij", unit, per_person, unit)
-    std = np.sqrt(var)
+    std = np.sqrt(np.maximum(var, 0.0))  # rounding can take a zero variance (two people at one spot) below 0
     np.fill_diagonal(std, 0.0)
     return Measurement(x0, from_ankles & np.all(np.isfinite(x0), axis=1), dist, std)

@@ -7,3 +7,7 @@ DEFAULT_HEIGHT_M = 1.32
 # Spread of that height across adults (metres): the prior's std in the refinement,
 # and the uncertainty of people placed from their shoulders.
 DEFAULT_HEIGHT_STD_M = 0.08
+# Height of the ankle keypoint (the lateral malleolus) above the sole: ~0.04 x stature, 0.07 m for the same
+# population. The pose model's ankle centre stands this far above the ground, so the plane the people fit
+# lies this far above the ground and the camera's height above the ground is rho plus this.
+DEFAULT_ANKLE_HEIGHT_M = 0.07

@@ -12,13 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .frame import FloatArray
-from .vec import dot
-
-
-def rays(points_n: FloatArray, focal_n: tuple[float, float]) -> FloatArray:
-    """K^-1 x~ for normalised points: un-normalised viewing rays (z = 1), (N, 3)."""
-    return np.stack((points_n[..., 0] / focal_n[0], points_n[..., 1] / focal_n[1], np.ones(points_n.shape[:-1])), -1)
+from .camera import rays
+from .vec import FloatArray, dot
 
 
 def intersect_plane(ray: FloatArray, normal: FloatArray, offset_m: float | FloatArray) -> FloatArray:
@@ -34,7 +29,10 @@ def intersect_plane(ray: FloatArray, normal: FloatArray, offset_m: float | Float
 
 
 def heights_above_ground(points_bottom: FloatArray, ray_top: FloatArray, normal: FloatArray) -> FloatArray:
-    """Each person's height (m): where the shoulder ray passes closest to the vertical through the ankle."""
+    """Each person's height (m): where the shoulder ray passes closest to the vertical through the ankle.
+
+    Broadcasts over leading axes, so RANSAC scores a batch of hypotheses with the same definition.
+    """
     nr = dot(ray_top, normal)
     rr = dot(ray_top, ray_top)
     nx = dot(points_bottom, normal)

@@ -1,20 +1,18 @@
-"""Maximum-likelihood polish of the linear solution (scipy.optimize.least_squares).
+"""Maximum a posteriori fit of the camera, its nuisances and every person (service.geometry.model).
 
-The linear solver minimises algebraic errors and treats every person as
-exactly h tall. Here each person instead gets a latent ankle position (on the
-ground, parameterised by its undistorted ankle pixel) and a latent height
-under a Gaussian prior, and the camera (focal length(s), normal, rho) is
-chosen to minimise the reprojection error of both keypoints in units of the
-keypoint noise plus the height prior in units of its standard deviation. That
-is the likelihood of the generative model the simulator draws from, so its
-minimum is the statistically efficient estimate, and its Jacobian at the
-minimum gives the covariance used for uncertainties.
+The linear solver minimises algebraic errors, treats every person as exactly h tall and assumes the
+principal point, square pixels and an unbiased pose model. Here the camera parameters theta (with priors on
+what people cannot determine), each observation's latent ankle and each individual's latent height (and
+lean) are chosen to minimise the whitened residuals of the generative model plus the priors: the
+statistically efficient estimate when the model holds, and its Gauss-Newton covariance carries the priors'
+spread into theta.
 
-Internal parameter vector: camera block theta = [log fx_n, (log fy_n), alpha,
-beta, log rho] (focal entries absent when the focal length is known), where
-the normal is normalise(N0 + alpha t1 + beta t2) around the initial normal N0;
-then, eliminated per camera, three entries per person: ankle u, ankle v
-(normalised), height (m).
+Levenberg-Marquardt with the structure of bundle adjustment: the normal equations are arrow-shaped, so
+each step eliminates the observations' 2x2 ankle blocks, then each individual's q x q block (q = 1: the
+height; q = 2: height and sideways lean, summed over the individual's observations), and solves the small reduced
+system in theta (the Schur complement). The same complement, undamped, is the inverse of theta's marginal
+covariance. Every step costs O(n p^2) for n observations and p camera parameters; Jacobians are central
+differences, evaluated for all observations and all perturbed cameras in two vectorised passes.
 """
 
 from __future__ import annotations
@@ -22,260 +20,293 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
 
-from .frame import FloatArray
-from .linear import LinearSolution
-from .vec import cross
+from .model import CameraBatch, Layout, Observations, Priors, unpack
+from .vec import FloatArray
 
-RESIDUALS_PER_PERSON = 5
-PARAMS_PER_PERSON = 3
-
-
-def tangent_basis(normal: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Two unit vectors orthogonal to normal and to each other."""
-    helper = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    t1 = cross(normal, helper)
-    t1 /= np.linalg.norm(t1)
-    return t1, cross(normal, t1)
-
-
-@dataclass
-class CameraModel:
-    """Maps the camera block theta to (focal_n, normal, rho) and back."""
-
-    normal0: FloatArray
-    equal_focal: bool
-    focal_n: tuple[float, float] | None  # known focal length: not estimated
-
-    def __post_init__(self) -> None:
-        self.t1, self.t2 = tangent_basis(self.normal0)
-
-    @property
-    def size(self) -> int:
-        return (0 if self.focal_n is not None else 1 if self.equal_focal else 2) + 3
-
-    def pack(self, solution: LinearSolution) -> FloatArray:
-        n = solution.normal
-        alpha, beta = (n @ self.t1) / (n @ self.normal0), (n @ self.t2) / (n @ self.normal0)
-        focal: list[float] = []
-        if self.focal_n is None:
-            focal = [np.log(solution.focal_n[0])] if self.equal_focal else list(np.log(solution.focal_n))
-        return np.array([*focal, alpha, beta, np.log(solution.rho_m)])
-
-    def unpack(self, theta: FloatArray) -> tuple[FloatArray, FloatArray, float]:
-        nf = self.size - 3
-        if self.focal_n is not None:
-            focal = np.asarray(self.focal_n, dtype=np.float64)
-        elif self.equal_focal:
-            focal = np.exp(np.array([theta[0], theta[0]]))
-        else:
-            focal = np.exp(theta[:2])
-        normal = self.normal0 + theta[nf] * self.t1 + theta[nf + 1] * self.t2
-        return focal, normal / np.linalg.norm(normal), float(np.exp(theta[nf + 2]))
-
-
-@dataclass
-class ReprojectionProblem:
-    """Whitened residuals of all people, as (N, 5) blocks: ankle (2), shoulder (2), height prior (1)."""
-
-    camera: CameraModel
-    tops_n: FloatArray
-    bottoms_n: FloatArray
-    noise_n: float  # keypoint noise std in normalised units
-    height_m: float
-    height_std_m: float
-
-    def person_residuals(self, theta: FloatArray, persons: FloatArray) -> FloatArray:
-        focal, normal, rho = self.camera.unpack(theta)
-        ankle = persons[:, :2]
-        heights = persons[:, 2]
-        ray = np.concatenate((ankle / focal, np.ones((len(ankle), 1))), 1)
-        denom = ray @ normal
-        # A ray that does not reach the ground is pushed back by a large but finite residual.
-        denom = np.minimum(denom, -1e-9)
-        x_top = ray * (-rho / denom)[:, None] + heights[:, None] * normal
-        z = np.maximum(x_top[:, 2], 1e-9)
-        top = focal * x_top[:, :2] / z[:, None]
-        return np.concatenate(
-            (
-                (ankle - self.bottoms_n) / self.noise_n,
-                (top - self.tops_n) / self.noise_n,
-                ((heights - self.height_m) / self.height_std_m)[:, None],
-            ),
-            1,
-        )
-
-    def camera_bounds(self) -> tuple[FloatArray, FloatArray]:
-        """Box that keeps the search physical (and exp() finite) on hopeless inputs."""
-        nf = self.camera.size - 3
-        lower = np.array([np.log(0.02)] * nf + [-2.0, -2.0, np.log(1e-3)])
-        upper = np.array([np.log(200.0)] * nf + [2.0, 2.0, np.log(1e5)])
-        return lower, upper
-
-    def solve_persons(self, theta: FloatArray, persons: FloatArray, iterations: int = 8) -> FloatArray:
-        """Each person's best (ankle, height) for a fixed camera: batched Gauss-Newton on 3x3 systems."""
-        lower = np.array([-10.0, -10.0, 0.1 * self.height_m])
-        upper = np.array([10.0, 10.0, 5.0 * self.height_m])
-        for _ in range(iterations):
-            r = self.person_residuals(theta, persons)
-            jp = self._person_jacobian(theta, persons, r)
-            jt = np.swapaxes(jp, 1, 2)
-            step = -(inverse_3x3(jt @ jp) @ (jt @ r[..., None]))[..., 0]
-            persons = np.clip(persons + step, lower, upper)
-            # Converged far below any keypoint noise: 1e-9 normalised is ~1e-6 px; heights to 1e-9 m.
-            if np.max(np.abs(step)) < 1e-9:
-                break
-        return persons
-
-    def _person_jacobian(self, theta: FloatArray, persons: FloatArray, base: FloatArray) -> FloatArray:
-        jp = np.empty(base.shape + (PARAMS_PER_PERSON,))
-        for k in range(PARAMS_PER_PERSON):
-            step = 1e-7 * np.maximum(1.0, np.abs(persons[:, k]))
-            p = persons.copy()
-            p[:, k] += step
-            jp[:, :, k] = (self.person_residuals(theta, p) - base) / step[:, None]
-        return jp
-
-    def camera_jacobian(self, theta: FloatArray, persons: FloatArray, base: FloatArray) -> FloatArray:
-        jc = np.empty(base.shape + (len(theta),))
-        for k in range(len(theta)):
-            step = 1e-7 * max(1.0, abs(theta[k]))
-            t = theta.copy()
-            t[k] += step
-            jc[:, :, k] = (self.person_residuals(t, persons) - base) / step
-        return jc
-
-    def block_jacobian(self, theta: FloatArray, persons: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Forward-difference Jacobian blocks: camera (N, 5, nc) and each person's own (N, 5, 3)."""
-        base = self.person_residuals(theta, persons)
-        return self.camera_jacobian(theta, persons, base), self._person_jacobian(theta, persons, base)
-
-
-def reduced_jacobian(jc: FloatArray, jp: FloatArray) -> FloatArray:
-    """Jacobian of the residuals with every person's parameters re-optimised (variable projection).
-
-    Kaufman's form: project each person's camera block onto the orthogonal
-    complement of that person's own Jacobian columns.
-    """
-    jt = np.swapaxes(jp, 1, 2)
-    return jc - jp @ (inverse_3x3(jt @ jp) @ (jt @ jc))
-
-
-def inverse_3x3(m: FloatArray) -> FloatArray:
-    """Batched inverse of symmetric positive (semi)definite 3x3 matrices by the adjugate.
-
-    Much faster than numpy's batched LAPACK calls for millions of tiny systems;
-    a (near-)singular block, a person who carries no information, gets a zero
-    inverse instead of infinities.
-    """
-    a, b, c = m[:, 0, 0], m[:, 0, 1], m[:, 0, 2]
-    d, e, f = m[:, 1, 1], m[:, 1, 2], m[:, 2, 2]
-    adj = np.empty_like(m)
-    adj[:, 0, 0] = d * f - e * e
-    adj[:, 0, 1] = adj[:, 1, 0] = c * e - b * f
-    adj[:, 0, 2] = adj[:, 2, 0] = b * e - c * d
-    adj[:, 1, 1] = a * f - c * c
-    adj[:, 1, 2] = adj[:, 2, 1] = b * c - a * e
-    adj[:, 2, 2] = a * d - b * b
-    det = a * adj[:, 0, 0] + b * adj[:, 0, 1] + c * adj[:, 0, 2]
-    scale = np.maximum(a * d * f, 1e-300)
-    inv_det = np.where(np.abs(det) > 1e-14 * scale, 1.0 / np.where(det == 0, 1.0, det), 0.0)
-    return adj * inv_det[:, None, None]
-
-
-def camera_covariance(jc: FloatArray, jp: FloatArray, residuals: FloatArray) -> FloatArray:
-    """Marginal covariance of the camera block, scaled by the residual variance.
-
-    With the people's parameters projected out, J_red' J_red is exactly the
-    Schur complement of J'J, so its inverse is the Gauss-Newton marginal
-    covariance of theta at O(N) cost.
-    """
-    j_red = reduced_jacobian(jc, jp).reshape(-1, jc.shape[2])
-    dof = max(residuals.size - jc.shape[2] - jp.shape[0] * jp.shape[2], 1)
-    variance_factor = float(np.sum(residuals**2)) / dof
-    return np.linalg.pinv(j_red.T @ j_red) * variance_factor
+_MAX_ITERATIONS = 60
+_CONVERGED_DECREMENT = 1e-16
+_STEP_THETA = 1e-5
+_STEP_PERSON = 1e-5
 
 
 @dataclass(frozen=True)
-class Refinement:
-    solution: LinearSolution
-    ankles_n: FloatArray  # refined (noise-free) ankle centres, normalised
-    heights_m: FloatArray
+class MapProblem:
+    """Everything fixed during one fit."""
+
+    layout: Layout
+    priors: Priors
+    observations: Observations
+    normal0: FloatArray
+    mu0: float
+
+    def cameras(self, theta: FloatArray) -> CameraBatch:
+        return unpack(self.layout, np.atleast_2d(theta), self.normal0, self.mu0)
+
+
+@dataclass(frozen=True)
+class MapFit:
     theta: FloatArray
-    covariance: FloatArray
-    camera: CameraModel
-    rms_residual: float
-    noise_n: float
-    person_costs: FloatArray  # sum of each person's squared whitened residuals
+    covariance: FloatArray  # of theta (p x p): the posterior's Gauss-Newton covariance
+    ankles_n: FloatArray  # (n, 2) latent ankle keypoints (distorted, noise-free)
+    person: FloatArray  # (T, q) each individual's height deviation (h = mu (1 + deviation)) [and lean, rad]
+    person_costs: FloatArray  # (n,) each observation's squared whitened residuals and its share of its prior
+    data_cost: float  # sum of squared whitened data residuals (without the priors)
+    variance_factor: float  # data residuals' mean square per degree of freedom
+    iterations: int
 
 
-def fit_camera(
-    tops_n: FloatArray,
-    bottoms_n: FloatArray,
-    start: LinearSolution,
-    start_heights_m: FloatArray,
-    height_m: float,
-    height_std_m: float,
-    noise_n: float,
-    equal_focal: bool,
-    focal_n: tuple[float, float] | None,
-    optimise: bool = True,
-    max_evaluations: int = 100,
-) -> Refinement:
-    """The ML polish of start (optimise=True), or only its covariance (optimise=False).
+def _inv2(m: FloatArray) -> FloatArray:
+    """Batched inverse of 2x2 matrices (a zero inverse for a singular block: a person with no information)."""
+    a, b, c, d = m[:, 0, 0], m[:, 0, 1], m[:, 1, 0], m[:, 1, 1]
+    det = a * d - b * c
+    scale = np.maximum(np.abs(a * d), 1e-300)
+    inv_det = np.where(np.abs(det) > 1e-14 * scale, 1.0 / np.where(det == 0, 1.0, det), 0.0)
+    out = np.empty_like(m)
+    out[:, 0, 0], out[:, 0, 1], out[:, 1, 0], out[:, 1, 1] = d, -b, -c, a
+    return out * inv_det[:, None, None]
 
-    least_squares searches over the few camera parameters only; for each
-    camera it is offered, every person's ankle and height are optimised in
-    closed batches (variable projection). That keeps the search small and dense,
-    O(N) per step, and it converges to the joint optimum.
+
+@dataclass
+class _Linearisation:
+    r: FloatArray  # (n, 4) data residuals
+    j_theta: FloatArray  # (n, 4, p)
+    j_ankle: FloatArray  # (n, 4, 2)
+    j_person: FloatArray  # (n, 4, q)
+
+
+def _linearise(problem: MapProblem, theta: FloatArray, ankles: FloatArray, person: FloatArray) -> _Linearisation:
+    """Residuals and central-difference Jacobians; `person` holds the individuals' (T, q) parameters.
+
+    Central differences (truncation error ~1e-10) make the fit converge to the same digits whatever the
+    image's scale or the people's order: forward differences left ~1e-6 of the posterior's flat directions
+    to floating-point luck.
     """
-    camera = CameraModel(start.normal, equal_focal, focal_n)
-    problem = ReprojectionProblem(camera, tops_n, bottoms_n, noise_n, height_m, height_std_m)
-    heights0 = np.clip(np.nan_to_num(start_heights_m, nan=height_m), 0.5 * height_m, 1.5 * height_m)
-    persons = problem.solve_persons(camera.pack(start), np.column_stack((bottoms_n, heights0)))
-    theta = camera.pack(start)
-    if optimise:
-        cache: dict[bytes, FloatArray] = {}
+    obs = problem.observations
+    per_obs = person[obs.track]
+    p, q = len(theta), person.shape[1]
+    steps = _STEP_THETA * np.maximum(1.0, np.abs(theta))
+    thetas = np.vstack((theta, theta + np.diag(steps), theta - np.diag(steps)))
+    res = obs.residuals(problem.cameras(thetas), ankles, per_obs)  # (2p + 1, n, 4)
+    base = res[0]
+    j_theta = np.moveaxis((res[1 : p + 1] - res[p + 1 :]) / (2.0 * steps[:, None, None]), 0, -1)
+    step_a = _STEP_PERSON * np.maximum(1.0, np.abs(ankles))
+    step_p = _STEP_PERSON * np.maximum(1.0, np.abs(per_obs))
+    moved_a = np.stack([ankles] * (4 + 2 * q))
+    moved_p = np.stack([per_obs] * (4 + 2 * q))
+    for axis in range(2):
+        moved_a[2 * axis, :, axis] += step_a[:, axis]
+        moved_a[2 * axis + 1, :, axis] -= step_a[:, axis]
+    for k in range(q):
+        moved_p[4 + 2 * k, :, k] += step_p[:, k]
+        moved_p[5 + 2 * k, :, k] -= step_p[:, k]
+    res = obs.residuals(problem.cameras(np.vstack([theta] * (4 + 2 * q))), moved_a, moved_p)
+    j_ankle = np.stack([(res[2 * a] - res[2 * a + 1]) / (2.0 * step_a[:, a : a + 1]) for a in range(2)], -1)
+    j_person = np.stack([(res[4 + 2 * k] - res[5 + 2 * k]) / (2.0 * step_p[:, k : k + 1]) for k in range(q)], -1)
+    return _Linearisation(base, j_theta, j_ankle, j_person)
 
-        def residuals(t: FloatArray) -> FloatArray:
-            nonlocal persons
-            persons = problem.solve_persons(t, persons)
-            cache[t.tobytes()] = persons
-            return problem.person_residuals(t, persons).ravel()
 
-        def jacobian(t: FloatArray) -> FloatArray:
-            p = cache.get(t.tobytes())
-            p = problem.solve_persons(t, persons) if p is None else p
-            jc, jp = problem.block_jacobian(t, p)
-            return reduced_jacobian(jc, jp).reshape(-1, len(t))
+def _person_prior_std(problem: MapProblem, q: int) -> FloatArray:
+    priors = problem.priors
+    return np.array([priors.height_std_rel, priors.lean_rad][:q])
 
-        lower, upper = problem.camera_bounds()
-        theta = np.clip(theta, lower + 1e-9, upper - 1e-9)
-        theta = least_squares(
-            residuals,
-            theta,
-            jac=jacobian,
-            bounds=(lower, upper),
-            method="trf",
-            x_scale="jac",
-            ftol=1e-12,
-            xtol=1e-12,
-            gtol=1e-12,
-            max_nfev=max_evaluations,
-        ).x
-        persons = problem.solve_persons(theta, cache.get(theta.tobytes(), persons))
-    focal, normal, rho = camera.unpack(theta)
-    jc, jp = problem.block_jacobian(theta, persons)
-    residual_blocks = problem.person_residuals(theta, persons)
-    return Refinement(
-        solution=LinearSolution((float(focal[0]), float(focal[1])), normal, rho),
-        ankles_n=persons[:, :2],
-        heights_m=persons[:, 2],
+
+def _prior_terms(problem: MapProblem, theta: FloatArray, person: FloatArray) -> tuple[FloatArray, ...]:
+    """Residuals of the priors and their Jacobians: on theta (p,), on the individuals (T, q), and the
+    camera-height residual with its log_rho derivative."""
+    layout, priors = problem.layout, problem.priors
+    finite = np.isfinite(layout.prior_std)
+    r_theta = np.where(finite, theta / np.where(finite, layout.prior_std, 1.0), 0.0)
+    r_person = person / _person_prior_std(problem, person.shape[1])
+    r_cam, d_cam = np.zeros(0), np.zeros(0)
+    if priors.camera_height_m is not None:
+        rho = float(np.exp(layout.value(theta[None], "log_rho")[0]))
+        known, std = priors.camera_height_m
+        r_cam, d_cam = np.array([(rho - known) / std]), np.array([rho / std])
+    return r_theta, r_person, r_cam, d_cam
+
+
+def _cost(problem: MapProblem, theta: FloatArray, ankles: FloatArray, person: FloatArray) -> float:
+    obs = problem.observations
+    r = obs.residuals(problem.cameras(theta), ankles, person[obs.track])[0]
+    priors = _prior_terms(problem, theta, person)
+    return float(np.sum(r * r) + sum(np.sum(x * x) for x in (priors[0], priors[1], priors[2])))
+
+
+@dataclass
+class _Reduced:
+    s: FloatArray  # (p, p) Schur complement on theta
+    g: FloatArray  # (p,)
+    # Back-substitution pieces.
+    x: FloatArray  # (n, 2, p)
+    y: FloatArray  # (n, 2, q)
+    z: FloatArray  # (n, 2)
+    h_inv: FloatArray  # (T, q, q)
+    h_t: FloatArray  # (T, q, p)
+    g_h: FloatArray  # (T, q)
+
+
+def _reduce(
+    problem: MapProblem, lin: _Linearisation, theta: FloatArray, person: FloatArray, damping: float
+) -> _Reduced:
+    obs, layout = problem.observations, problem.layout
+    ja, jh, jt, r = lin.j_ankle, lin.j_person, lin.j_theta, lin.r
+    p, q, t_count = len(theta), person.shape[1], obs.tracks
+    ja_t, jh_t = np.swapaxes(ja, 1, 2), np.swapaxes(jh, 1, 2)
+    u_aa = ja_t @ ja  # (n, 2, 2)
+    u_ah = ja_t @ jh  # (n, 2, q)
+    u_hh = jh_t @ jh  # (n, q, q)
+    w_at = ja_t @ jt  # (n, 2, p)
+    w_ht = jh_t @ jt  # (n, q, p)
+    flat = jt.reshape(-1, p)
+    v_tt = flat.T @ flat
+    g_a = (ja_t @ r[:, :, None])[:, :, 0]
+    g_h = (jh_t @ r[:, :, None])[:, :, 0]
+    g_t = flat.T @ r.ravel()
+
+    r_theta, r_person, r_cam, d_cam = _prior_terms(problem, theta, person)
+    finite = np.isfinite(layout.prior_std)
+    inv_std = np.where(finite, 1.0 / np.where(finite, layout.prior_std, 1.0), 0.0)
+    v_tt = v_tt + np.diag(inv_std**2)
+    g_t = g_t + inv_std * r_theta
+    inv_person = 1.0 / _person_prior_std(problem, q)
+    if len(r_cam):
+        i = layout.index["log_rho"]
+        v_tt[i, i] += float(d_cam[0] ** 2)
+        g_t[i] += float(d_cam[0] * r_cam[0])
+
+    # Marquardt damping on every diagonal.
+    u_aa = u_aa + damping * np.einsum("nii->ni", u_aa)[:, :, None] * np.eye(2)
+    v_tt = v_tt + damping * np.diag(np.diag(v_tt))
+    u_inv = _inv2(u_aa)
+    x = u_inv @ w_at  # (n, 2, p)
+    y = u_inv @ u_ah  # (n, 2, q)
+    z = (u_inv @ g_a[:, :, None])[:, :, 0]
+    u_ah_t = np.swapaxes(u_ah, 1, 2)
+    hh_o = u_hh - u_ah_t @ y
+    ht_o = w_ht - u_ah_t @ x
+    gh_o = g_h - (u_ah_t @ z[:, :, None])[:, :, 0]
+    h_hh = np.zeros((t_count, q, q))
+    h_ht = np.zeros((t_count, q, p))
+    gh_t = np.zeros((t_count, q))
+    np.add.at(h_hh, obs.track, hh_o)
+    np.add.at(h_ht, obs.track, ht_o)
+    np.add.at(gh_t, obs.track, gh_o)
+    h_hh += np.diag(inv_person**2)
+    gh_t += inv_person * r_person
+    h_hh = h_hh + damping * np.einsum("tii->ti", h_hh)[:, :, None] * np.eye(q)
+    h_inv = np.linalg.inv(h_hh)
+    w_flat = w_at.reshape(-1, p)
+    hw = h_inv @ h_ht  # (T, q, p)
+    s = v_tt - w_flat.T @ x.reshape(-1, p) - np.einsum("tkj,tkl->jl", h_ht, hw)
+    g = g_t - w_flat.T @ z.ravel() - np.einsum("tkj,tk->j", hw, gh_t)
+    return _Reduced(s, g, x, y, z, h_inv, h_ht, gh_t)
+
+
+def _step(
+    problem: MapProblem,
+    red: _Reduced,
+    ankles: FloatArray,
+    person: FloatArray,
+    theta: FloatArray,
+    frozen: bool = False,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """One Gauss-Newton step from the reduced system; frozen keeps theta and moves only the people."""
+    d_theta = np.zeros(len(theta))
+    free = problem.layout.estimated
+    if not frozen and free.any():
+        d_theta[free] = np.linalg.lstsq(red.s[np.ix_(free, free)], -red.g[free], rcond=None)[0]
+    d_p = -(red.h_inv @ (red.g_h + red.h_t @ d_theta)[:, :, None])[:, :, 0]
+    track = problem.observations.track
+    d_a = -(red.z + (red.y @ d_p[track][:, :, None])[:, :, 0] + red.x @ d_theta)
+    lower, upper = problem.layout.bounds()
+    person = person + d_p
+    # Deviations beyond -0.9 would be people of a tenth of the height, leans beyond 0.5 rad falling over.
+    person[:, 0] = np.clip(person[:, 0], -0.9, 2.0)
+    person[:, 1:] = np.clip(person[:, 1:], -0.5, 0.5)
+    return np.clip(theta + d_theta, lower, upper), ankles + d_a, person
+
+
+def _consider_covariance(layout: Layout, s: FloatArray) -> FloatArray:
+    """Covariance of theta when the considered parameters c are held at 0 rather than estimated.
+
+    With A = S_ee (the estimated block, priors included), B = S_ec (cross terms: data only) and P the
+    considered parameters' prior covariance, holding c at 0 while its truth is c* shifts the estimate by
+    M c*, M = A^-1 B; so cov(e) = A^-1 + M P M^T, cov(e, c) = -M P, cov(c) = P.
+    """
+    if not len(s):
+        return np.zeros((0, 0))
+    e = layout.estimated
+    if e.all():
+        return np.linalg.pinv(s, hermitian=True)
+    c = ~e
+    a_inv = np.linalg.pinv(s[np.ix_(e, e)], hermitian=True)
+    m = a_inv @ s[np.ix_(e, c)]
+    p = np.diag(layout.prior_std[c] ** 2)
+    cov = np.zeros_like(s)
+    cov[np.ix_(e, e)] = a_inv + m @ p @ m.T
+    cov[np.ix_(e, c)] = -m @ p
+    cov[np.ix_(c, e)] = (-m @ p).T
+    cov[np.ix_(c, c)] = p
+    return cov
+
+
+def fit_map(
+    problem: MapProblem,
+    theta0: FloatArray,
+    person0: FloatArray,
+    *,
+    optimise: bool = True,
+    ankles: FloatArray | None = None,
+) -> MapFit:
+    """Levenberg-Marquardt from theta0 (latent ankles start at the measured ones unless given, individuals
+    at person0, (T, q)); optimise=False holds theta and only evaluates the covariance there."""
+    obs = problem.observations
+    theta, person = theta0.astype(np.float64), person0.astype(np.float64).copy()
+    ankles = obs.bottoms_n.copy() if ankles is None else ankles.copy()
+    # optimise=False: people still take their best positions and heights for this camera (theta frozen).
+    cost = _cost(problem, theta, ankles, person)
+    damping = 1e-4
+    iterations = 0
+    for iterations in range(1, _MAX_ITERATIONS + 1):  # noqa: B007 - the count is reported
+        lin = _linearise(problem, theta, ankles, person)
+        converged = True
+        for _ in range(12):
+            red = _reduce(problem, lin, theta, person, damping)
+            candidate = _step(problem, red, ankles, person, theta, frozen=not optimise)
+            new_cost = _cost(problem, *candidate)
+            if np.isfinite(new_cost) and new_cost <= cost:
+                # Converged once the step is far below the parameters' own uncertainty (the Newton
+                # decrement in units of the posterior: 1e-16 is a step of 1e-8 sigma), or when no step
+                # lowers the cost (floating-point noise).
+                d = candidate[0] - theta
+                decrement = float(d @ red.s @ d)
+                theta, ankles, person = candidate
+                cost = new_cost
+                damping = max(damping / 5.0, 1e-9)
+                converged = decrement < _CONVERGED_DECREMENT
+                break
+            damping *= 8.0
+        if converged:
+            break
+    lin = _linearise(problem, theta, ankles, person)
+    red = _reduce(problem, lin, theta, person, 0.0)
+    covariance = _consider_covariance(problem.layout, red.s)
+    per_obs = np.sum(lin.r * lin.r, axis=1)
+    data_cost = float(np.sum(per_obs))
+    dof = max(2 * len(per_obs) - len(theta), 1)
+    r_person = _prior_terms(problem, theta, person)[1]
+    # Each observation's cost includes its share of its individual's prior: a person whose height (or lean)
+    # had to go far from the population's to fit is as suspect as one whose pixels do not fit.
+    track = problem.observations.track
+    share = np.sum(r_person**2, axis=1) / np.bincount(track, minlength=len(person))
+    return MapFit(
         theta=theta,
-        covariance=camera_covariance(jc, jp, residual_blocks),
-        camera=camera,
-        rms_residual=float(np.sqrt(np.mean(residual_blocks[:, :4] ** 2))) * noise_n,
-        noise_n=noise_n,
-        person_costs=np.sum(residual_blocks**2, axis=1),
+        covariance=covariance,
+        ankles_n=ankles,
+        person=person,
+        person_costs=per_obs + share[track],
+        data_cost=data_cost,
+        variance_factor=(data_cost + float(np.sum(r_person**2))) / dof,
+        iterations=iterations,
     )

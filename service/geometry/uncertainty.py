@@ -1,13 +1,17 @@
-"""Uncertainty of a calibration and of the distances measured with it.
+"""Uncertainty of a calibration in a canonical, self-contained parameterisation.
 
 The refinement's covariance lives on its internal parameters (log focal,
-tangent offsets around the starting normal, log rho). It is mapped here to a
-canonical, self-contained parameterisation around the reported solution,
+tangent offsets around the starting normal, log rho, nuisances). It is mapped
+(service.geometry.posterior.canonical_covariance) to canonical parameters
+around the reported solution,
 
-    c = (fx_px, fy_px, t1_rad, t2_rad, rho_m),  N(c) = normalise(N + t1 e1 + t2 e2),
+    c = (fx_px, fy_px, t1_rad, t2_rad, rho_m, cx_px, cy_px, k),  N(c) = normalise(N + t1 e1 + t2 e2),
 
-with (e1, e2) = tangent_basis(N), so anyone holding a Calibration can
-propagate it (first order) into any derived quantity without the solver.
+with (e1, e2) = tangent_basis(N) and k the division-model distortion, so anyone
+holding a Calibration can propagate it (first order) into any derived quantity
+without the solver. The first five are the layout of versions stored before
+the principal point and distortion had uncertainties; a 5x5 covariance is read
+as those five with the rest exact.
 """
 
 from __future__ import annotations
@@ -15,10 +19,19 @@ from __future__ import annotations
 import numpy as np
 
 from .calibration import Uncertainty
-from .frame import FloatArray
-from .refine import CameraModel, tangent_basis
+from .model import tangent_basis
+from .vec import FloatArray
 
-CANONICAL_PARAMETERS = ("fx_px", "fy_px", "normal_t1_rad", "normal_t2_rad", "rho_m")
+CANONICAL_PARAMETERS = (
+    "fx_px",
+    "fy_px",
+    "normal_t1_rad",
+    "normal_t2_rad",
+    "rho_m",
+    "cx_px",
+    "cy_px",
+    "distortion_k",
+)
 
 
 def canonical_camera(
@@ -33,30 +46,10 @@ def canonical_camera(
     return float(c[0]), float(c[1]), n / np.linalg.norm(n), float(c[4])
 
 
-def canonical_covariance(camera: CameraModel, theta: FloatArray, cov_theta: FloatArray, scale_px: float) -> FloatArray:
-    """5x5 covariance of c from the covariance of the internal parameters theta (first order)."""
-    _, normal_hat, _ = camera.unpack(theta)
-    e1, e2 = tangent_basis(normal_hat)
-
-    def to_canonical(t: FloatArray) -> FloatArray:
-        focal, n, rho = camera.unpack(t)
-        # Inverse of canonical_camera's map: tangent offsets of n around normal_hat.
-        return np.array(
-            [focal[0] * scale_px, focal[1] * scale_px, (n @ e1) / (n @ normal_hat), (n @ e2) / (n @ normal_hat), rho]
-        )
-
-    base = to_canonical(theta)
-    jac = np.empty((5, len(theta)))
-    for k in range(len(theta)):
-        step = 1e-7 * max(1.0, abs(theta[k]))
-        t = theta.copy()
-        t[k] += step
-        jac[:, k] = (to_canonical(t) - base) / step
-    return jac @ cov_theta @ jac.T
-
-
-def summarise(cov_c: FloatArray, noise_px: float) -> Uncertainty:
+def summarise(cov_c: FloatArray, noise_px: float, noise_per_length: float = 0.0) -> Uncertainty:
     sd = np.sqrt(np.maximum(np.diag(cov_c), 0.0))
+    extra = np.zeros(len(CANONICAL_PARAMETERS))
+    extra[: len(sd)] = sd
     return Uncertainty(
         fx_px=float(sd[0]),
         fy_px=float(sd[1]),
@@ -64,4 +57,8 @@ def summarise(cov_c: FloatArray, noise_px: float) -> Uncertainty:
         rho_m=float(sd[4]),
         covariance=cov_c,
         noise_px=float(noise_px),
+        cx_px=float(extra[5]),
+        cy_px=float(extra[6]),
+        distortion_k=float(extra[7]),
+        noise_per_length=float(noise_per_length),
     )

@@ -14,7 +14,7 @@ from typing import Literal
 
 import numpy as np
 
-from service.calibration.service import calibration_from_version
+from service.calibration.camera_model import calibration_from_version
 from service.frames.schemas import FrameResult
 from service.render.frame import FramePictures
 from service.render.heatmap import ViolationPoint, render_heatmap

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from service.domain import METRES_PER_FOOT
-from service.geometry.frame import FloatArray
+from service.geometry.vec import FloatArray
 
 from .ground import GroundFrame, clip_line_to_polygon
 

@@ -20,8 +20,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from service.geometry.calibration import Calibration
-from service.geometry.distortion import distort, undistort
-from service.geometry.frame import FloatArray
+from service.geometry.camera import Camera, OpenCVLens
+from service.geometry.vec import FloatArray
 
 # Camera-frame points closer than this in depth are not projected (a ray at z ~ 0 lands at infinity).
 MIN_DEPTH_M = 1e-3
@@ -57,6 +57,7 @@ class GroundFrame:
     normal: FloatArray
     rho: float
     distortion_k: float = 0.0
+    lens: OpenCVLens | None = None  # the user's lens: pictures are drawn through it
 
     @classmethod
     def from_calibration(cls, cal: Calibration, image_size_px: tuple[int, int] | None = None) -> GroundFrame:
@@ -79,6 +80,7 @@ class GroundFrame:
             normal=normal / np.linalg.norm(normal),
             rho=float(cal.rho),
             distortion_k=float(cal.distortion_k),
+            lens=cal.lens,  # on focal-normalised coordinates: unchanged by rescaling
         )
 
     # ------------------------------------------------------------------ frame
@@ -106,21 +108,15 @@ class GroundFrame:
 
     # ------------------------------------------------------------------ pixels
     @property
-    def _scale_px(self) -> float:
-        """The distortion model's normalisation scale, (W + H) / 4 as in service.geometry.frame."""
-        return (self.width_px + self.height_px) / 4.0
+    def _camera(self) -> Camera:
+        size = (float(self.width_px), float(self.height_px))
+        return Camera(self.fx, self.fy, self.cx, self.cy, size, self.distortion_k, self.lens)
 
     def _distort_px(self, ideal_px: FloatArray) -> FloatArray:
-        if self.distortion_k == 0.0:
-            return ideal_px
-        c = np.array([self.cx, self.cy])
-        return distort((ideal_px - c) / self._scale_px, self.distortion_k) * self._scale_px + c
+        return self._camera.distort_px(ideal_px)
 
     def _undistort_px(self, px: FloatArray) -> FloatArray:
-        if self.distortion_k == 0.0:
-            return px
-        c = np.array([self.cx, self.cy])
-        return undistort((px - c) / self._scale_px, self.distortion_k) * self._scale_px + c
+        return self._camera.undistort_px(px)
 
     def camera_to_pixels(self, points: ArrayLike) -> FloatArray:
         """(..., 3) camera-frame points -> (..., 2) pixels (with distortion); NaN for points not in front."""
@@ -190,7 +186,7 @@ class GroundFrame:
         sampled densely, so the polygon follows the curved image of the border to within a fraction of a pixel.
         """
         w, h = float(self.width_px), float(self.height_px)
-        per_side = 2 if self.distortion_k == 0.0 else 48
+        per_side = 2 if self.distortion_k == 0.0 and self.lens is None else 48
         t = np.linspace(0.0, 1.0, per_side, endpoint=False)
         border = np.concatenate(
             (

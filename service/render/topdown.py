@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from service.geometry.calibration import Calibration
-from service.geometry.frame import FloatArray
+from service.geometry.vec import FloatArray
 
 from .ground import GroundFrame
 from .labels import Box, box_at, place_labels

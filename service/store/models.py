@@ -106,6 +106,7 @@ KEYPOINTS_DTYPE = np.dtype("<f4")
 KEYPOINT_COUNT = 17
 _KEYPOINTS_STRUCT = struct.Struct(f"<{3 * KEYPOINT_COUNT}f")
 CALIBRATION_STATUSES = ("ok", "failed")
+QUALITY_GRADES = ("good", "rough", "unreliable")
 # Why a camera's calibration epoch was opened (the first has no reason).
 EPOCH_REASONS = ("camera_moved", "reset", "image_size_changed")
 
@@ -180,6 +181,15 @@ class Camera(Base):
     equal_focal: Mapped[bool] = mapped_column(Boolean, default=True)
     distance_threshold_m: Mapped[float] = mapped_column(default=DEFAULT_DISTANCE_THRESHOLD_M)
     known_focal_px: Mapped[float | None]
+    # The camera model the installer knows (issue 16), each optional: fy when fx and fy differ (known_focal_px is
+    # fx), the principal point, OpenCV lens coefficients [k1, k2, p1, p2(, k3)] and the camera's height with its
+    # tolerance. service.cameras.schemas validates them; the calibration worker builds its problem from them.
+    known_focal_y_px: Mapped[float | None]
+    principal_point_x_px: Mapped[float | None]
+    principal_point_y_px: Mapped[float | None]
+    distortion_coefficients: Mapped[list[float] | None] = mapped_column(JSON)
+    camera_height_m: Mapped[float | None]
+    camera_height_tolerance_m: Mapped[float | None]
     # Privacy by default: an image frame's picture is dropped once its people are found, unless this is set.
     keep_images: Mapped[bool] = mapped_column(Boolean, default=False, server_default=text("false"))
     # Maintained on insert, so "is a solve due?" never has to count millions of rows.
@@ -200,6 +210,8 @@ class Camera(Base):
         CheckConstraint("person_height_m > 0", name="person_height_positive"),
         CheckConstraint("distance_threshold_m > 0", name="distance_threshold_positive"),
         CheckConstraint("known_focal_px IS NULL OR known_focal_px > 0", name="known_focal_positive"),
+        CheckConstraint("known_focal_y_px IS NULL OR known_focal_y_px > 0", name="known_focal_y_positive"),
+        CheckConstraint("camera_height_m IS NULL OR camera_height_m > 0", name="camera_height_positive"),
         CheckConstraint("epoch >= 1", name="epoch_positive"),
         CheckConstraint(f"epoch_reason IS NULL OR epoch_reason IN {_in(EPOCH_REASONS)}", name="epoch_reason"),
     )
@@ -391,6 +403,13 @@ class CalibrationVersion(Base):
     covariance: Mapped[list[list[float | None]] | None] = mapped_column(JSON)
     noise_px: Mapped[float | None]
     distortion_k: Mapped[float | None]
+    # What measuring with this version needs beyond the columns above, and what the responses show about it:
+    # lens, ankle height, size-dependent keypoint noise, the covariance's parameter names, where each intrinsic
+    # came from with its sigma, the inputs the solve was given (service.calibration.camera_model).
+    camera_model: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    # good | rough | unreliable (service.geometry.quality); an unreliable version measures but raises no alerts.
+    quality_grade: Mapped[str | None] = mapped_column(String(16))
+    quality: Mapped[dict[str, Any] | None] = mapped_column(JSON)
     person_height_m: Mapped[float]
     people_used: Mapped[int] = mapped_column(Integer)
     inliers: Mapped[int] = mapped_column(Integer)
@@ -418,6 +437,7 @@ class CalibrationVersion(Base):
             name="ok_is_complete",
         ),
         CheckConstraint("version >= 1", name="version_positive"),
+        CheckConstraint(f"quality_grade IS NULL OR quality_grade IN {_in(QUALITY_GRADES)}", name="quality_grade"),
     )
 
 

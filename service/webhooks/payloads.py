@@ -93,7 +93,8 @@ class CalibrationStatusChangedData(CalibrationData):
     previous_status: CameraStatus
     reason: str = Field(
         description="What changed it: `calibrated`, `reset`, `image size changed`, `camera_moved` (the movement "
-        "test found that the camera's view changed: a new calibration epoch starts)."
+        "test found that the camera's view changed: a new calibration epoch starts), `camera model changed` (the "
+        "principal point, known focal length or lens)."
     )
 
 

@@ -96,6 +96,27 @@ def test_thresholds_need_a_unit() -> None:
             parse_threshold(bad)
 
 
+def test_camera_options_are_parsed_and_checked() -> None:
+    from service.analyze.options import AnalyzeOptions, parse_numbers
+
+    assert parse_numbers("960.5, 540", "--principal-point", (2,)) == (960.5, 540.0)
+    assert parse_numbers(None, "--lens", (4, 5)) is None
+    with pytest.raises(AnalyzeError, match="--focal-px must be 1 or 2"):
+        parse_numbers("1,2,3", "--focal-px", (1, 2))
+    with pytest.raises(AnalyzeError, match="--lens"):
+        parse_numbers("a,b,c,d", "--lens", (4, 5))
+    options = AnalyzeOptions(
+        principal_point_px=(950.0, 530.0), focal_px=(2700.0, 2710.0), lens=(-0.1, 0.02, 0.0, 0.0), camera_height_m=7.8
+    ).checked()
+    problem = options.problem((1920, 1080))
+    assert problem.principal_point_px == (950.0, 530.0) and problem.known_focal_px == (2700.0, 2710.0)
+    assert problem.lens is not None and problem.lens.k1 == -0.1 and problem.camera_height_m == 7.8
+    with pytest.raises(AnalyzeError, match="lens needs 4 or 5"):
+        AnalyzeOptions(lens=(0.1, 0.2)).checked()
+    with pytest.raises(AnalyzeError, match="camera height"):
+        AnalyzeOptions(camera_height_m=-1.0).checked()
+
+
 def test_a_handful_of_usable_people_is_refused_not_calibrated(models: Path, tmp_path: Path) -> None:
     """The steep atrium view: the detector finds the people (9-20 a frame), but MoveNet trusts both ankles of few
     of them from that high; a camera from a handful of people looked solved and was not (a 360 px focal length

@@ -9,18 +9,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from bench.geometry import (
-    Setting,
-    TrialResult,
-    angle_deg,
-    distance_errors,
-    evaluate,
-    point_errors_pct,
-    relative_error_pct,
-    run_method,
-    summarise,
-    without_outliers,
-)
+from bench.geometry import summarise
+from bench.methods import Setting, run_method, without_outliers
+from bench.metrics import TrialResult, angle_deg, distance_errors, evaluate, point_errors_pct, relative_error_pct
 from bench.simulate import Scene, SceneConfig, draw_scene
 from service.geometry import Calibration
 

@@ -3,6 +3,8 @@ when a solve runs, what it keys and samples, and whether its version becomes cur
 
 from __future__ import annotations
 
+from datetime import UTC, datetime, timedelta
+
 import numpy as np
 import pytest
 import redis
@@ -10,15 +12,18 @@ from rq import Queue
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session, sessionmaker
 
+from bench.simulate import SceneConfig, draw_scene
 from service.calibration import evidence
 from service.calibration import service as calibration_service
 from service.calibration.repository import current_calibration
 from service.calibration.service import at_least_as_supported, key_camera_evidence
 from service.domain import CalibrationValues
+from service.frames.ingest import add_keypoint_frame
+from service.frames.keypoints import person_from_centres
 from service.queue import CALIBRATION_QUEUE, RedisDispatcher
 from service.settings import get_settings
 from service.store import CalibrationVersion, Frame, Observation, ViolationEvent
-from tests.support.jobs import frame_statuses, run_jobs, simulated_camera, store_frames, versions
+from tests.support.jobs import IMAGE_SIZE, frame_statuses, run_jobs, simulated_camera, store_frames, versions
 
 
 @pytest.fixture(params=["sqlite", "postgresql"])
@@ -121,7 +126,7 @@ def test_version_becomes_current_only_when_as_well_supported_unless_forced(
     # Evidence doubles, but the solve runs on a tiny sample: fewer inliers and less precise, so it must not
     # replace version 1...
     store_frames(sessions, camera, 20)
-    monkeypatch.setenv("POSEMETRY_CALIBRATION_SAMPLE_CAP", "12")
+    monkeypatch.setenv("POSEMETRY_CALIBRATION_SAMPLE_CAP", "20")  # above the 15 people a calibration needs
     get_settings.cache_clear()
     redis_dispatcher.request(CALIBRATION_QUEUE, camera.camera_id)
     run_jobs(connection)
@@ -180,3 +185,33 @@ def test_calibration_error_is_recorded_and_the_worker_carries_on(
         (2, "ok", True),
     ]
     assert frame_statuses(sessions) == {"done": 5}
+
+
+def test_a_few_walkers_seen_many_times_are_not_reported_as_a_calibration(
+    sessions: sessionmaker[Session], redis_dispatcher: RedisDispatcher, connection: redis.Redis
+) -> None:
+    """Eight people each walking through ten frames are 80 observations but eight draws of a height: the frame
+    times link them, and eight distinct people are too thin to report a camera from (at least 15)."""
+    scene = draw_scene(
+        SceneConfig.surveillance(n_people=80, observations_per_person=10, height_mean_m=1.32, height_std_m=0.08),
+        np.random.default_rng(4),
+    )
+    camera = simulated_camera(sessions, people=1)
+    sighting = np.zeros(len(scene.tracks), dtype=int)
+    for label in np.unique(scene.tracks):
+        rows = np.flatnonzero(scene.tracks == label)
+        sighting[rows] = np.arange(len(rows))
+    start = datetime(2026, 1, 1, tzinfo=UTC)
+    for k in np.unique(sighting):  # frame k: every walker's k-th sighting, 0.5 s apart
+        rows = np.flatnonzero(sighting == k)
+        people = [person_from_centres(tuple(scene.tops_px[i]), tuple(scene.bottoms_px[i]), IMAGE_SIZE) for i in rows]
+        with sessions() as session, session.begin():
+            add_keypoint_frame(session, camera.camera_id, timestamp=start + timedelta(seconds=0.5 * k), people=people)
+    assert len(np.unique(scene.tracks)) < 15
+    redis_dispatcher.request(CALIBRATION_QUEUE, camera.camera_id, forced=True)
+    run_jobs(connection)
+    (version,) = versions(sessions, camera.camera_id)
+    assert version.status == "failed" and not version.is_current
+    assert version.reason is not None and "distinct people agree (at least 15 are needed)" in version.reason
+    with sessions() as session:
+        assert current_calibration(session, camera.camera_id) is None

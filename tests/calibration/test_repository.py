@@ -89,10 +89,10 @@ def test_a_geometry_solution_round_trips_with_non_finite_values_as_null(session:
     from dataclasses import replace
 
     from bench.simulate import SceneConfig, draw_scene
-    from service.geometry import calibrate
+    from service.geometry import CalibrationProblem, calibrate
 
     scene = draw_scene(replace(SceneConfig(), n_people=60, image_size=(800, 800)), np.random.default_rng(3))
-    solution = calibrate(scene.tops_px, scene.bottoms_px, image_size=(800, 800), height=1.7)
+    solution = calibrate(scene.tops_px, scene.bottoms_px, CalibrationProblem((800, 800), 1.7))
     assert solution.uncertainty is not None
     covariance = np.array(solution.uncertainty.covariance, dtype=float)
     covariance[0, 0] = np.nan

@@ -6,10 +6,11 @@ import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
+from service.calibration.repository import add_calibration
 from service.cameras.repository import delete_camera
 from service.geometry import DEFAULT_HEIGHT_M
 from service.store.models import Camera
-from tests.support.app import CAMERA, assert_problem, frame_body, standing
+from tests.support.app import CAMERA, assert_problem, frame_body, solved, standing
 from tests.support.dispatch import RecordingDispatcher
 
 
@@ -126,3 +127,71 @@ def test_a_camera_deleted_by_another_process_is_404_for_frames(client: TestClien
     with app.state.session_factory() as session, session.begin():
         delete_camera(session, camera)  # past this process's cache, as another API process would
     assert_problem(client.post(f"/v1/cameras/{camera}/keypoints", json=frame_body(standing(2))), 404, camera)
+
+
+def test_the_camera_model_round_trips_and_a_put_replaces_it(client: TestClient) -> None:
+    body = {
+        "image_width_px": 1920,
+        "image_height_px": 1080,
+        "principal_point_px": [1010.5, 480],
+        "known_focal_px": [1400, 1410],
+        "distortion": {"model": "opencv", "coefficients": [-0.2, 0.05, 0.001, -0.001]},
+        "camera_height_m": 6.5,
+    }
+    camera = client.put("/v1/cameras/lobby", json=body).json()
+    assert camera["principal_point_px"] == [1010.5, 480]
+    assert camera["known_focal_px"] == [1400, 1410]
+    assert camera["distortion"] == {"model": "opencv", "coefficients": [-0.2, 0.05, 0.001, -0.001]}
+    assert camera["camera_height_m"] == 6.5 and camera["camera_height_tolerance_m"] == 0.1
+    assert client.get("/v1/cameras/lobby").json() == camera
+    single = client.put(
+        "/v1/cameras/lobby", json={"image_width_px": 1920, "image_height_px": 1080, "known_focal_px": 1400}
+    )
+    assert single.json()["known_focal_px"] == 1400
+    assert single.json()["principal_point_px"] is None and single.json()["distortion"] is None
+
+
+@pytest.mark.parametrize(
+    ("extra", "field", "fragment"),
+    [
+        ({"principal_point_px": [2000, 500]}, "body", "outside the 1920x1080 image"),
+        ({"principal_point_px": [-1, 500]}, "body", "outside"),
+        ({"principal_point_px": [960]}, "body.principal_point_px", ""),
+        ({"principal_point_px": [960, "NaN"]}, "body.principal_point_px[1]", ""),
+        ({"known_focal_px": 50}, "body", "96-96000 px"),
+        ({"known_focal_px": [1000, 1e7]}, "body", "known_focal_px"),
+        ({"known_focal_px": -3}, "body.known_focal_px", ""),
+        ({"known_focal_px": [1000, 1000, 1000]}, "body.known_focal_px", ""),
+        ({"distortion": {"model": "fisheye", "coefficients": [0, 0, 0, 0]}}, "body.distortion.model", ""),
+        ({"distortion": {"model": "opencv", "coefficients": [0.1, 0.2, 0]}}, "body.distortion.coefficients", ""),
+        ({"distortion": {"model": "opencv", "coefficients": [0, 0, 0, 0, 0, 0]}}, "body.distortion.coefficients", ""),
+        ({"camera_height_m": 0}, "body.camera_height_m", ""),
+        ({"camera_height_m": 5, "camera_height_tolerance_m": 0}, "body.camera_height_tolerance_m", ""),
+    ],
+)  # fmt: skip
+def test_bad_camera_model_values_are_422(
+    client: TestClient, extra: dict[str, object], field: str, fragment: str
+) -> None:
+    body = {"image_width_px": 1920, "image_height_px": 1080, **extra}
+    problem = assert_problem(client.put("/v1/cameras/x", json=body), 422, field, fragment)
+    assert any(e["field"].startswith(field) for e in problem["errors"]), problem
+    assert client.get("/v1/cameras/x").status_code == 404
+
+
+def test_a_new_principal_point_resets_the_calibration_and_forces_a_resolve_on_the_same_evidence(
+    client: TestClient, camera: str, app: FastAPI, dispatcher: RecordingDispatcher
+) -> None:
+    client.post(f"/v1/cameras/{camera}/keypoints", json=frame_body(standing(3)))
+    with app.state.session_factory() as session:
+        add_calibration(session, camera, solved(3), make_current=True)
+        session.commit()
+    size = {"image_width_px": 1920, "image_height_px": 1080}
+    client.put(f"/v1/cameras/{camera}", json={**size, "camera_height_m": 5.0})
+    assert dispatcher.calibrations == [(CAMERA, True)]  # a prior: re-solve, the current one stays in use
+    assert client.get(f"/v1/cameras/{camera}/calibration").json()["status"] == "calibrated"
+    client.put(f"/v1/cameras/{camera}", json={**size, "camera_height_m": 5.0, "principal_point_px": [900, 600]})
+    assert dispatcher.calibrations == [(CAMERA, True), (CAMERA, True)]
+    status = client.get(f"/v1/cameras/{camera}/calibration").json()
+    assert status["status"] != "calibrated" and status["version"] is None  # never mixed with the old solution
+    assert status["epoch"] == 1  # the same view: the same epoch, whose people the re-solve uses
+    assert client.get(f"/v1/cameras/{camera}").json()["usable_evidence_count"] == 3

@@ -33,6 +33,7 @@ from tests.compose.stack import (
     wait_until,
 )
 from tests.support.app import coco_person
+from tests.support.jobs import FRAME_SPACING_S
 from tests.support.serving import free_port
 from tests.support.shared import TOWN_CENTRE, model_dir_path, require_dir
 
@@ -131,7 +132,11 @@ def _migrated_with_an_admin_key(stack: Stack) -> str:
 
 
 def _frame(frame_id: str, k: int, people: list[dict[str, Any]]) -> dict[str, Any]:
-    return {"timestamp": (START + timedelta(seconds=k)).isoformat(), "frame_id": frame_id, "people": people}
+    return {
+        "timestamp": (START + timedelta(seconds=FRAME_SPACING_S * k)).isoformat(),
+        "frame_id": frame_id,
+        "people": people,
+    }
 
 
 class Street:

@@ -10,7 +10,7 @@ from fastapi.testclient import TestClient
 from bench.simulate import SceneConfig, draw_scene
 from service.calibration.repository import add_calibration
 from service.domain import CalibrationValues
-from service.geometry import calibrate
+from service.geometry import CalibrationProblem, calibrate
 from tests.support.app import assert_problem
 
 
@@ -75,7 +75,7 @@ def test_true_calibration_gives_true_distances(client: TestClient, app: FastAPI)
 def test_solved_calibration_distances_within_their_uncertainty(client: TestClient, app: FastAPI) -> None:
     evidence = _scene(seed=11, noise_px=1.0)
     camera = _camera(client)
-    cal = calibrate(evidence.tops_px, evidence.bottoms_px, image_size=(1920, 1080), height=1.7)
+    cal = calibrate(evidence.tops_px, evidence.bottoms_px, CalibrationProblem((1920, 1080), 1.7))
     values = CalibrationValues.from_solution(cal, people_used=40, evidence_count=40)
     with app.state.session_factory() as session:
         add_calibration(session, camera, values, make_current=True)

@@ -15,6 +15,7 @@ import pytest
 
 from bench.simulate import SceneConfig, draw_scene
 from tests.support.app import coco_person
+from tests.support.jobs import FRAME_SPACING_S
 from tests.support.serving import clean_environment, serve
 
 FRAMES = 40
@@ -40,7 +41,7 @@ def test_streamed_frames_calibrate_the_camera_and_come_back_measured(
         for k in range(FRAMES):
             people = slice(k * PEOPLE_PER_FRAME, (k + 1) * PEOPLE_PER_FRAME)
             body = {
-                "timestamp": (START + timedelta(seconds=k)).isoformat(),
+                "timestamp": (START + timedelta(seconds=FRAME_SPACING_S * k)).isoformat(),
                 "frame_id": f"street-{k}",
                 "people": [
                     {"keypoints": coco_person(tuple(top), tuple(bottom))}

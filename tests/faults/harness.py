@@ -35,6 +35,7 @@ from bench.simulate import Scene, SceneConfig, draw_scene
 from service.embedded_redis import redis_server_binary
 from service.http.problems import PROBLEM_MEDIA_TYPE
 from service.store.migrate import upgrade
+from tests.support.jobs import FRAME_SPACING_S
 from tests.support.postgres import PostgresCluster, cluster_or_skip
 from tests.support.serving import REPO, clean_environment, free_port, stop
 from tests.support.shared import model_dir_path
@@ -158,7 +159,7 @@ class SimulatedCamera:
         frame_id = f"{self.camera_id}-{k}"
         self.frame_ids.append(frame_id)
         return {
-            "timestamp": (START + timedelta(seconds=k)).isoformat(),
+            "timestamp": (START + timedelta(seconds=FRAME_SPACING_S * k)).isoformat(),
             "frame_id": frame_id,
             "people": [
                 {"shoulder": [float(t[0]), float(t[1])], "ankle": [float(b[0]), float(b[1])]}

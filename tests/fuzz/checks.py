@@ -50,6 +50,7 @@ STATED_PROBLEM_TYPES = frozenset(
 STATED_ERROR_TYPES = frozenset(
     {
         "coordinate_out_of_image",  # depends on the camera's image size
+        "intrinsics_out_of_image",  # a principal point or focal length that does not fit the image size
         "timestamp_out_of_range",  # a valid RFC 3339 text for an instant before year 1 or after 9999 in UTC
         "expires_in_past",  # depends on the clock
     }

@@ -5,9 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.geometry import CalibrationError, calibrate
-
-from .conftest import scene
+from service.geometry import CalibrationError, CalibrationProblem, SolveOptions, calibrate
+from tests.support.geometry import scene
 
 SIZE = (1920, 1080)
 
@@ -20,11 +19,16 @@ def robust(request: pytest.FixtureRequest) -> bool:
 def test_fewer_people_than_the_minimum(robust: bool) -> None:
     s = scene(1, noise_px=0.0)
     with pytest.raises(CalibrationError, match="at least 2"):
-        calibrate(s.tops_px[:1], s.bottoms_px[:1], SIZE, 1.7, robust=robust)
+        calibrate(s.tops_px[:1], s.bottoms_px[:1], CalibrationProblem(SIZE, 1.7), SolveOptions(robust=robust))
     with pytest.raises(CalibrationError, match="at least 3"):
-        calibrate(s.tops_px[:2], s.bottoms_px[:2], SIZE, 1.7, equal_focal=False, robust=robust)
+        calibrate(
+            s.tops_px[:2],
+            s.bottoms_px[:2],
+            CalibrationProblem(SIZE, 1.7, equal_focal=False),
+            SolveOptions(robust=robust),
+        )
     with pytest.raises(CalibrationError):
-        calibrate(np.empty((0, 2)), np.empty((0, 2)), SIZE, 1.7, robust=robust)
+        calibrate(np.empty((0, 2)), np.empty((0, 2)), CalibrationProblem(SIZE, 1.7), SolveOptions(robust=robust))
 
 
 def test_all_segments_on_one_image_line(robust: bool) -> None:
@@ -32,20 +36,20 @@ def test_all_segments_on_one_image_line(robust: bool) -> None:
     tops = np.column_stack((xs, 0.3 * xs + 100))
     bottoms = np.column_stack((xs + 50, 0.3 * (xs + 50) + 100))
     with pytest.raises(CalibrationError):
-        calibrate(tops, bottoms, SIZE, 1.7, robust=robust)
+        calibrate(tops, bottoms, CalibrationProblem(SIZE, 1.7), SolveOptions(robust=robust))
 
 
 def test_zero_length_segments(robust: bool) -> None:
     pts = np.random.default_rng(0).uniform((0, 0), SIZE, (10, 2))
     with pytest.raises(CalibrationError, match="at least"):
-        calibrate(pts, pts.copy(), SIZE, 1.7, robust=robust)
+        calibrate(pts, pts.copy(), CalibrationProblem(SIZE, 1.7), SolveOptions(robust=robust))
 
 
 def test_zero_length_people_are_excluded_not_fatal() -> None:
     s = scene(2, noise_px=0.0, square_pixels=True)
     tops = s.tops_px.copy()
     tops[3] = s.bottoms_px[3]
-    cal = calibrate(tops, s.bottoms_px, SIZE, 1.7, robust=False, refine=False)
+    cal = calibrate(tops, s.bottoms_px, CalibrationProblem(SIZE, 1.7), SolveOptions(robust=False, refine=False))
     assert not cal.inliers[3]
     assert np.all(np.isnan(cal.points_bottom[3]))
     assert cal.fx == pytest.approx(s.fx, rel=1e-8)
@@ -57,7 +61,7 @@ def test_non_finite_coordinates(bad: float) -> None:
     bottoms = s.bottoms_px.copy()
     bottoms[4, 1] = bad
     with pytest.raises(CalibrationError, match=r"bottoms\[4\] is not finite"):
-        calibrate(s.tops_px, bottoms, SIZE, 1.7)
+        calibrate(s.tops_px, bottoms, CalibrationProblem(SIZE, 1.7))
 
 
 def test_points_far_outside_the_image() -> None:
@@ -65,7 +69,7 @@ def test_points_far_outside_the_image() -> None:
     tops = s.tops_px.copy()
     tops[2] = (1e7, -5e6)
     with pytest.raises(CalibrationError, match="far outside"):
-        calibrate(tops, s.bottoms_px, SIZE, 1.7)
+        calibrate(tops, s.bottoms_px, CalibrationProblem(SIZE, 1.7))
 
 
 @pytest.mark.parametrize(
@@ -81,7 +85,7 @@ def test_points_far_outside_the_image() -> None:
 )
 def test_malformed_arguments(tops: object, bottoms: object, size: tuple[int, int], height: float, match: str) -> None:
     with pytest.raises(CalibrationError, match=match):
-        calibrate(tops, bottoms, size, height)  # type: ignore[arg-type]
+        calibrate(tops, bottoms, CalibrationProblem(size, height))  # type: ignore[arg-type]
 
 
 def test_random_garbage_never_crashes_or_returns_nonsense() -> None:
@@ -93,7 +97,12 @@ def test_random_garbage_never_crashes_or_returns_nonsense() -> None:
         tops = bottoms + rng.uniform((-200, -400), (200, 100), (n, 2))
         for robust in (False, True):
             try:
-                cal = calibrate(tops, bottoms, SIZE, 1.7, robust=robust, equal_focal=bool(rng.integers(2)))
+                cal = calibrate(
+                    tops,
+                    bottoms,
+                    CalibrationProblem(SIZE, 1.7, equal_focal=bool(rng.integers(2))),
+                    SolveOptions(robust=robust),
+                )
             except CalibrationError:
                 continue
             assert cal.fx > 0 and cal.fy > 0 and cal.rho > 0
@@ -107,4 +116,4 @@ def test_undetermined_focal_length_is_refused_not_reported() -> None:
     """Four noisy people (3 px) with varied heights: the solve lands on an f it cannot support."""
     s = scene(12, noise_px=3.0, n_people=4, square_pixels=True, height_std_m=0.1)
     with pytest.raises(CalibrationError, match="do not determine the focal length"):
-        calibrate(s.tops_px, s.bottoms_px, SIZE, 1.7)
+        calibrate(s.tops_px, s.bottoms_px, CalibrationProblem(SIZE, 1.7))

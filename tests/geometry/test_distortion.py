@@ -8,19 +8,17 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bench.simulate import Scene, SceneConfig, draw_scene
-from service.geometry import CalibrationError, calibrate, measure
+from service.geometry import CalibrationError, CalibrationProblem, SolveOptions, calibrate, measure
+from service.geometry.camera import ImageFrame, distort, undistort
 from service.geometry.distortion import (
     collinearity_roots,
-    distort,
     estimate_division_k,
     paper_pencil,
     paper_roots,
     sampson_cost,
-    undistort,
 )
-from service.geometry.frame import FloatArray, ImageFrame
-
-from .conftest import angle_deg
+from service.geometry.vec import FloatArray
+from tests.support.geometry import angle_deg
 
 HEIGHT_M = 1.7
 DIVISION_KS = [-0.1, -0.05, 0.05]
@@ -87,12 +85,8 @@ def test_noise_free_division_scenes_are_recovered_exactly(k: float, equal_focal:
         cal = calibrate(
             frame.to_pixels(tops),
             frame.to_pixels(bottoms),
-            s.image_size,
-            HEIGHT_M,
-            equal_focal=equal_focal,
-            robust=False,
-            refine=False,
-            distortion=True,
+            CalibrationProblem(s.image_size, HEIGHT_M, equal_focal=equal_focal),
+            SolveOptions(robust=False, refine=False, distortion=True),
         )
         assert cal.distortion_k == pytest.approx(k, abs=1e-8)
         assert cal.fx == pytest.approx(s.fx, rel=1e-7)
@@ -178,7 +172,10 @@ def test_correction_beats_plain_solve_on_the_opencv_polynomial_model(k1: float) 
         for errors, distortion in ((plain, False), (corrected, True)):
             try:
                 cal = calibrate(
-                    s.tops_px, s.bottoms_px, s.image_size, HEIGHT_M, robust=False, refine=False, distortion=distortion
+                    s.tops_px,
+                    s.bottoms_px,
+                    CalibrationProblem(s.image_size, HEIGHT_M),
+                    SolveOptions(robust=False, refine=False, distortion=distortion),
                 )
                 errors.append((abs(cal.fx / s.fx - 1.0), angle_deg(cal.normal, s.normal)))
             except CalibrationError:

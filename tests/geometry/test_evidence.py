@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from service.geometry import CalibrationProblem
 from service.geometry.evidence import balanced_sample, collapse_repeats, repeat_radius_px, solve_evidence
-
-from .conftest import scene
+from tests.support.geometry import scene
 
 
 def test_a_static_detection_with_jitter_collapses_and_walkers_survive() -> None:
@@ -60,19 +60,19 @@ def test_solve_evidence_collapses_repeats_and_maps_inliers_back() -> None:
     # A mannequin seen in 50 frames: the same segment, repeated, must count once among the people used.
     tops = np.vstack([truth.tops_px, np.repeat(truth.tops_px[:1], 50, axis=0)])
     bottoms = np.vstack([truth.bottoms_px, np.repeat(truth.bottoms_px[:1], 50, axis=0)])
-    solve = solve_evidence(tops, bottoms, truth.image_size, 1.7 * 0.78, equal_focal=True)
+    solve = solve_evidence(tops, bottoms, CalibrationProblem(truth.image_size, 1.7 * 0.78, equal_focal=True))
     assert solve.calibration is not None and solve.error is None
     assert solve.people_used == 60 and solve.used.tolist() == list(range(60))
     assert abs(solve.calibration.fx / truth.fx - 1) < 0.1
     mask = solve.inlier_mask(len(tops))
     assert mask.sum() == solve.calibration.num_inliers >= 50 and not mask[60:].any()
-    capped = solve_evidence(tops, bottoms, truth.image_size, 1.7 * 0.78, cap=30)
+    capped = solve_evidence(tops, bottoms, CalibrationProblem(truth.image_size, 1.7 * 0.78), cap=30)
     assert capped.people_used == 30 and capped.calibration is not None
 
 
 def test_solve_evidence_reports_why_it_cannot_calibrate() -> None:
     tops = np.array([[100.0, 100.0], [400.0, 120.0]])
     bottoms = np.array([[100.0, 300.0], [400.0, 330.0]])
-    solve = solve_evidence(tops, bottoms, (640, 480))
+    solve = solve_evidence(tops, bottoms, CalibrationProblem((640, 480)))
     assert solve.calibration is None and solve.error and solve.people_used == 2
     assert not solve.inlier_mask(2).any()

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from bench.simulate import SceneConfig, draw_scene
-from service.geometry import CalibrationError, calibrate
-from service.geometry.frame import ImageFrame, homogeneous
+from service.geometry import CalibrationError, SolveOptions
+from service.geometry.camera import ImageFrame
 from service.geometry.linear import focal_weights, scaled_depths, solve_linear, vanishing_point
-
-from .conftest import angle_deg, scene
+from service.geometry.vec import homogeneous
+from tests.support.geometry import angle_deg, scene, solve
 
 RESOLUTIONS = [(640, 480), (1280, 720), (1920, 1080)]
 FOVS = [45.0, 60.0, 90.0, 120.0]
@@ -31,7 +31,8 @@ def test_noise_free_minimal_scenes_are_recovered_exactly(size: tuple[int, int], 
     rng = np.random.default_rng(int(fov) + size[0])
     for _ in range(20):
         s = draw_scene(config, rng)
-        cal = calibrate(s.tops_px, s.bottoms_px, s.image_size, 1.7, equal_focal=equal_focal, robust=False, refine=False)
+        # The linear solver alone: two or three people cannot also bound the nuisances a covariance would carry.
+        cal = solve(s, SolveOptions(robust=False, refine=False, uncertainty=False), equal_focal=equal_focal)
         assert cal.fx == pytest.approx(s.fx, rel=1e-8)
         assert cal.fy == pytest.approx(s.fy, rel=1e-8)
         assert angle_deg(cal.normal, s.normal) < 1e-6
@@ -44,7 +45,7 @@ def test_noise_free_minimal_scenes_are_recovered_exactly(size: tuple[int, int], 
 @pytest.mark.parametrize("robust", [False, True])
 def test_default_pipeline_is_exact_on_noise_free_crowds(robust: bool) -> None:
     s = scene(3, noise_px=0.0, n_people=40)
-    cal = calibrate(s.tops_px, s.bottoms_px, s.image_size, 1.7, equal_focal=False, robust=robust)
+    cal = solve(s, SolveOptions(robust=robust), equal_focal=False)
     assert cal.refined
     assert cal.fx == pytest.approx(s.fx, rel=1e-7)
     assert cal.fy == pytest.approx(s.fy, rel=1e-7)
@@ -94,7 +95,7 @@ def test_printed_formulas_are_wrong_and_corrections_right() -> None:
 
 def test_known_focal_length_solves_only_the_ground_plane() -> None:
     s = scene(9, noise_px=0.0, square_pixels=True)
-    cal = calibrate(s.tops_px, s.bottoms_px, s.image_size, 1.7, focal_px=s.fx, robust=False, refine=False)
+    cal = solve(s, SolveOptions(robust=False, refine=False), focal_px=s.fx)
     assert cal.fx == s.fx
     assert cal.rho == pytest.approx(s.rho, rel=1e-9)
     assert angle_deg(cal.normal, s.normal) < 1e-7
@@ -102,7 +103,7 @@ def test_known_focal_length_solves_only_the_ground_plane() -> None:
 
 def test_normal_points_up_and_people_are_in_front() -> None:
     s = scene(2, noise_px=0.5)
-    cal = calibrate(s.tops_px, s.bottoms_px, s.image_size, 1.7, equal_focal=False)
+    cal = solve(s, equal_focal=False)
     assert cal.normal @ s.normal > 0.99
     assert np.all(cal.points_bottom[cal.inliers][:, 2] > 0)
     assert np.linalg.norm(cal.normal) == pytest.approx(1.0)
@@ -114,5 +115,5 @@ def test_fx_is_unobservable_without_roll() -> None:
     frame = ImageFrame.from_size(s.image_size)
     with pytest.raises(CalibrationError, match="fx and fy"):
         solve_linear(frame.normalise(s.tops_px), frame.normalise(s.bottoms_px), 1.7, equal_focal=False)
-    cal = calibrate(s.tops_px, s.bottoms_px, s.image_size, 1.7, equal_focal=True, robust=False, refine=False)
+    cal = solve(s, SolveOptions(robust=False, refine=False), equal_focal=True)
     assert np.isfinite(cal.fx)

@@ -5,10 +5,9 @@ from __future__ import annotations
 import numpy as np
 
 from bench.simulate import SceneConfig, draw_scene
-from service.geometry import CalibrationError, calibrate
+from service.geometry import CalibrationError, SolveOptions
 from service.geometry.reconstruct import pairwise_distances
-
-from .conftest import angle_deg
+from tests.support.geometry import angle_deg, solve
 
 
 def test_paper_protocol_noise_and_height_spread() -> None:
@@ -17,7 +16,7 @@ def test_paper_protocol_noise_and_height_spread() -> None:
     for trial in range(40):
         s = draw_scene(config, np.random.default_rng(1000 + trial))
         try:
-            cal = calibrate(s.tops_px, s.bottoms_px, s.image_size, 1.7, equal_focal=False, seed=trial)
+            cal = solve(s, SolveOptions(seed=trial), equal_focal=False)
         except CalibrationError:
             failures += 1
             continue
@@ -44,7 +43,7 @@ def test_surveillance_preset_many_people() -> None:
     errors = []
     for trial in range(15):
         s = draw_scene(config, np.random.default_rng(trial))
-        cal = calibrate(s.tops_px, s.bottoms_px, s.image_size, 1.7, seed=trial)
+        cal = solve(s, SolveOptions(seed=trial))
         errors.append((abs(cal.fx / s.fx - 1), angle_deg(cal.normal, s.normal)))
     fx, normal = np.mean(errors, axis=0)
     assert fx < 0.03 and normal < 0.5

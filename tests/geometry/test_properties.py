@@ -7,10 +7,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from service.geometry import CalibrationError, calibrate
+from service.geometry import CalibrationError, CalibrationProblem, SolveOptions, calibrate
 from service.geometry.reconstruct import pairwise_distances
-
-from .conftest import angle_deg, scene
+from tests.support.geometry import angle_deg, scene, solve
 
 scenes = st.builds(
     lambda seed, n, noise, square: (
@@ -26,7 +25,7 @@ SETTINGS = settings(max_examples=25, deadline=None, suppress_health_check=[Healt
 
 
 def _calibrate(tops: np.ndarray, bottoms: np.ndarray, size: tuple[float, float], square: bool, **kw: object):
-    return calibrate(tops, bottoms, size, 1.7, equal_focal=square, **kw)  # type: ignore[arg-type]
+    return calibrate(tops, bottoms, CalibrationProblem(size, 1.7, equal_focal=square), SolveOptions(**kw))  # type: ignore[arg-type]
 
 
 @SETTINGS
@@ -80,7 +79,7 @@ def test_scaling_the_image_scales_f_and_nothing_else(drawn, s_factor: float) -> 
 @given(st.integers(0, 10_000))
 def test_same_seed_same_answer(seed: int) -> None:
     s = scene(seed, n_people=30, noise_px=1.0, outlier_fraction=0.3)
-    a = calibrate(s.tops_px, s.bottoms_px, s.image_size, 1.7, equal_focal=False, seed=seed)
-    b = calibrate(s.tops_px, s.bottoms_px, s.image_size, 1.7, equal_focal=False, seed=seed)
+    a = solve(s, SolveOptions(seed=seed), equal_focal=False)
+    b = solve(s, SolveOptions(seed=seed), equal_focal=False)
     assert (a.fx, a.fy, a.rho) == (b.fx, b.fy, b.rho)
     np.testing.assert_array_equal(a.inliers, b.inliers)

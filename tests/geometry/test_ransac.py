@@ -6,11 +6,13 @@ import numpy as np
 import pytest
 
 from bench.simulate import OUTLIER_KINDS
-from service.geometry import calibrate
-from service.geometry.frame import ImageFrame, homogeneous
-from service.geometry.ransac import RansacSettings, _required_iterations, score_hypotheses, solve_minimal
-
-from .conftest import angle_deg, scene
+from service.geometry import SolveOptions
+from service.geometry.camera import ImageFrame
+from service.geometry.consensus import ConsensusSettings, score_hypotheses
+from service.geometry.minimal import solve_minimal
+from service.geometry.ransac import RansacOptions, required_iterations
+from service.geometry.vec import homogeneous
+from tests.support.geometry import angle_deg, scene, solve
 
 
 @pytest.mark.parametrize("equal_focal", [True, False])
@@ -38,7 +40,7 @@ def test_scoring_flags_exactly_the_corrupted_people() -> None:
         np.array([s.rho]),
         1.7,
         frame.scale_px,
-        RansacSettings(inlier_px=3.0),
+        ConsensusSettings(inlier_px=3.0),
     )[0]
     assert np.all(costs[~s.outliers] < 1e-12)  # perfect people cost nothing
     assert np.all(costs[s.outliers] > 0)
@@ -51,8 +53,8 @@ def test_survives_thirty_percent_outliers(equal_focal: bool) -> None:
         kw = {"n_people": 60, "noise_px": 0.5, "height_std_m": 0.07, "square_pixels": equal_focal}
         clean = scene(seed, **kw)
         dirty = scene(seed, outlier_fraction=0.3, **kw)
-        a = calibrate(clean.tops_px, clean.bottoms_px, clean.image_size, 1.7, equal_focal=equal_focal, seed=seed)
-        c = calibrate(dirty.tops_px, dirty.bottoms_px, dirty.image_size, 1.7, equal_focal=equal_focal, seed=seed)
+        a = solve(clean, SolveOptions(seed=seed), equal_focal=equal_focal)
+        c = solve(dirty, SolveOptions(seed=seed), equal_focal=equal_focal)
         errors_clean.append(abs(a.fx / clean.fx - 1))
         errors_dirty.append(abs(c.fx / dirty.fx - 1))
         leaked.append(c.inliers[dirty.outliers].mean())
@@ -65,7 +67,7 @@ def test_survives_thirty_percent_outliers(equal_focal: bool) -> None:
 def test_outlier_kinds_are_rejected() -> None:
     """Sitting people and random detections are caught by the height and direction tests."""
     s = scene(3, noise_px=0.5, n_people=80, outlier_fraction=0.4)
-    cal = calibrate(s.tops_px, s.bottoms_px, s.image_size, 1.7, equal_focal=False)
+    cal = solve(s, equal_focal=False)
     idx = np.flatnonzero(s.outliers)
     for k, kind in enumerate(OUTLIER_KINDS):
         if kind in ("sitting", "bad_detection"):
@@ -75,9 +77,9 @@ def test_outlier_kinds_are_rejected() -> None:
 def test_stops_early_on_clean_data_and_uses_more_iterations_on_dirty() -> None:
     clean = scene(5, noise_px=0.5, n_people=100)
     dirty = scene(5, noise_px=0.5, n_people=100, outlier_fraction=0.7)
-    a = calibrate(clean.tops_px, clean.bottoms_px, clean.image_size, 1.7, equal_focal=False, refine=False)
-    b = calibrate(dirty.tops_px, dirty.bottoms_px, dirty.image_size, 1.7, equal_focal=False, refine=False)
-    assert a.ransac_iterations <= RansacSettings(inlier_px=1).batch
+    a = solve(clean, SolveOptions(refine=False), equal_focal=False)
+    b = solve(dirty, SolveOptions(refine=False), equal_focal=False)
+    assert a.ransac_iterations <= RansacOptions().batch
     # 30 % inliers, samples of 3, 99.9 % confidence: log(0.001) / log(1 - 0.3^3) = 253 draws.
     assert b.ransac_iterations >= 253
-    assert _required_iterations(0.3, 3, 0.999) == 253
+    assert required_iterations(0.3, 3, 0.999) == 253

@@ -23,7 +23,7 @@ from service.settings import get_settings
 from service.store import Frame
 from service.store import sessions as store_sessions
 from tests.support.app import ADMIN_KEY, bearer
-from tests.support.jobs import IMAGE_SIZE, simulated_camera, store_frames
+from tests.support.jobs import IMAGE_SIZE, frame_timestamp, simulated_camera, store_frames
 from tests.support.logs import json_lines, json_log
 from tests.support.scrape import Scrape
 from tests.support.shared import TOWN_CENTRE, model_dir_path, require_dir
@@ -171,7 +171,7 @@ def test_request_ids_follow_frames_into_the_measuring_job(
         for index in range(4):  # 40 people: enough to calibrate (POSEMETRY_CALIBRATION_MIN_PEOPLE=30)
             tops, bottoms = scene.frame_people()
             people = [{"shoulder": t.tolist(), "ankle": b.tolist()} for t, b in zip(tops, bottoms, strict=True)]
-            body = {"timestamp": f"2026-01-01T12:00:0{index}Z", "people": people}
+            body = {"timestamp": frame_timestamp(index), "people": people}
             response = client.post(
                 "/v1/cameras/lobby/keypoints", json=body, headers={"X-Request-ID": f"cam-req-{index}"}
             )

@@ -18,7 +18,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from service.queue import CALIBRATION_QUEUE, FRAMES_QUEUE, POSE_QUEUE, QUEUES, RedisDispatcher
 from service.store import Frame
-from tests.support.jobs import IMAGE_SIZE, simulated_camera, store_frames, store_image
+from tests.support.jobs import IMAGE_SIZE, frame_timestamp, simulated_camera, store_frames, store_image
 from tests.support.scrape import Scrape
 from tests.support.serving import REPO, Served, clean_environment, free_port, serve, stop, wait_for
 from tests.support.shared import TOWN_CENTRE, model_dir_path, require_dir
@@ -52,7 +52,7 @@ def test_serve_exports_every_process_and_logs_json_under_request_ids(
         for index in range(5):
             tops, bottoms = scene.frame_people()
             people = [{"shoulder": t.tolist(), "ankle": b.tolist()} for t, b in zip(tops, bottoms, strict=True)]
-            frame = {"timestamp": f"2026-01-01T12:00:0{index}Z", "people": people}
+            frame = {"timestamp": frame_timestamp(index), "people": people}
             status, body = app.http(
                 "POST", "/v1/cameras/lobby/keypoints", frame, headers={"X-Request-ID": f"serve-req-{index}"}
             )

@@ -6,5 +6,6 @@
 - jobs, measure: a real Redis and RQ workers, simulated cameras storing frames; a stored frame measured in place.
 - serving: `posemetry serve` as a real process; receiver: a real local webhook receiver.
 - logs, scrape: the service's JSON log lines and its Prometheus exposition, parsed.
+- geometry: synthetic scenes for the geometry tests, the ideal camera's problem fields, angle errors.
 - shared, analyze: where the real models and camera data are, and `posemetry analyze` as a user runs it.
 """

@@ -29,6 +29,7 @@ from service.embedded_redis import EmbeddedRedis
 from service.frames.images import read_header
 from service.frames.ingest import add_image_frame, add_keypoint_frame
 from service.frames.keypoints import person_from_centres
+from service.geometry.tracks import MAX_GAP_S
 from service.queue import QUEUES, RedisDispatcher, connect
 from service.settings import get_settings
 from service.store import sessions as store_sessions
@@ -38,6 +39,14 @@ from tests.support.shared import model_dir_path
 
 IMAGE_SIZE = (1920, 1080)
 PEOPLE_PER_FRAME = 10
+# A simulated camera's frames hold independent people (drawn anew for every frame), so frames are further apart
+# than the calibration links one walker's sightings (service.geometry.tracks.MAX_GAP_S): nobody is seen twice.
+FRAME_SPACING_S = 2 * MAX_GAP_S
+
+
+def frame_timestamp(k: int) -> str:
+    """The RFC 3339 timestamp of a simulated camera's k-th frame, FRAME_SPACING_S apart from 2026-01-01T12:00Z."""
+    return (datetime(2026, 1, 1, 12, tzinfo=UTC) + timedelta(seconds=FRAME_SPACING_S * k)).isoformat()
 
 
 @pytest.fixture(scope="session")
@@ -151,7 +160,10 @@ def store_frames(
         persons = [person_from_centres(tuple(t), tuple(b), IMAGE_SIZE) for t, b in zip(tops, bottoms, strict=True)]
         with sessions() as session, session.begin():
             frame, _created = add_keypoint_frame(
-                session, camera.camera_id, timestamp=start + timedelta(seconds=len(ids)), people=persons
+                session,
+                camera.camera_id,
+                timestamp=start + timedelta(seconds=FRAME_SPACING_S * len(ids)),
+                people=persons,
             )
             ids.append(frame.id)
         if dispatcher is not None:

@@ -210,6 +210,10 @@ def test_calibration_and_violation_webhooks_end_to_end(
         assert (
             data["uncertainty"] == status["uncertainty"] and data["evidence_count"] == status["solved_evidence_count"]
         )
+        # Where the principal point, focal length and lens came from, with sigma, and what the solve is worth.
+        assert data["camera_model"] == status["camera_model"] and data["quality"] == status["quality"]
+        assert data["camera_model"]["principal_point"]["source"] in ("assumed", "estimated")
+        assert data["quality"]["grade"] != "unreliable"  # else the violation below would raise no alert
         assert datetime.fromisoformat(event["timestamp"]) <= datetime.now(UTC)
     assert updated["data"]["previous_version"] is None
     assert (changed["data"]["previous_status"], changed["data"]["reason"]) == ("uncalibrated", "calibrated")

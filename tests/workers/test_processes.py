@@ -23,7 +23,7 @@ from service.cli.processes import QUEUE_NAMES
 from service.queue import QUEUES, RedisDispatcher
 from service.runtime import default_process_split
 from service.store import Frame
-from tests.support.jobs import IMAGE_SIZE, simulated_camera, store_frames
+from tests.support.jobs import IMAGE_SIZE, frame_timestamp, simulated_camera, store_frames
 from tests.support.serving import REPO, clean_environment, serve, stop, wait_for
 from tests.support.shared import TOWN_CENTRE, model_dir_path, require_dir
 
@@ -76,7 +76,7 @@ def test_serve_runs_everything_and_shuts_down_cleanly(tmp_path: Path, sessions: 
                 for t, b in zip(tops, bottoms, strict=True)
             ]
             status, body = app.http(
-                "POST", "/v1/cameras/lobby/keypoints", {"timestamp": f"2026-01-01T12:00:0{index}Z", "people": people}
+                "POST", "/v1/cameras/lobby/keypoints", {"timestamp": frame_timestamp(index), "people": people}
             )
             assert status == 202, body
             urls.append(body["url"])

@@ -1,0 +1,250 @@
+"""The generative model the refinement fits: what a camera with its nuisances makes of upright people.
+
+Everything is in frame-normalised coordinates (service.geometry.camera.ImageFrame, centred on the image
+centre or on a given principal point, scaled by (W + H) / 4). Observation o of individual t(o):
+
+    a_o          latent ankle-centre keypoint (distorted, as the pose model would report it without noise)
+    u_o          = c + U_k(a_o - c)                 undistorted by the division model about the principal point c
+    X_B          = -rho / (N . r) r,  r = ((u_o - c)_x / fx, (u_o - c)_y / fy, 1)     the ankle on the plane
+    X_T          = X_B + h_t N                      the shoulder centre straight above it
+    s_o          = c + D_k(fx X_T,x / Z, fy X_T,y / Z)       its distorted image
+    top_o        = s_o + beta (s_o - a_o) / |s_o - a_o|      plus the pose model's bias along the body
+
+and the measured ankle and shoulder centres are a_o and top_o plus Gaussian noise: sigma on the ankle,
+sqrt(sigma^2 + (lambda l_o)^2) on the shoulder, where l_o is the segment's length (walking people lean, so the
+shoulders scatter in proportion to the person's size). Each individual also has a sideways lean a_t ~ N(0,
+lambda_t), shared by their observations (a walking posture does not change from frame to
+frame, so thirty observations of one leaning person are one draw of a lean, like one draw of a height):
+X_T = X_B + h_t normalise(N + a_t s) with s the camera's x axis laid on the ground (only the sideways lean:
+see _body_axes). Heights h_t = mu (1 + delta_t), delta_t ~ N(0,
+sigma_h / mu0), belong to individuals, not to observations: one person seen in thirty frames is one draw of
+a height, not thirty (on the Oxford Town Centre clip a few short people walking near the camera otherwise
+tilt the whole ground by 2 degrees). The spread is relative on purpose: people's images fix only h / rho,
+so scaling rho and every height together changes no residual, and an absolute spread would reward the
+smaller world (a jointly fitted scale then shrinks by the fitted heights' relative variance times the
+mean-height prior's information: 8 % on a 100-person scene). With delta relative only mu's prior (or a
+known camera height) sets the scale.
+
+Camera parameters theta, each present only when it is estimated (`Layout`):
+
+    log_f, aspect    fx = e^log_f, fy = fx e^aspect (square pixels: fy/fx is never exactly 1; a consider
+                     parameter, so fx = fy is reported with the aspect's prior in the covariance)
+    log_fy           instead of aspect when fx and fy are free
+    cx, cy           principal point offset from the frame's centre, with a prior unless given
+    t1, t2           the normal N = normalise(N0 + t1 e1 + t2 e2) around the starting normal
+    log_rho          rho: the camera's height above the plane of the ankle keypoints
+    k                division-model distortion about c: estimated when the evidence selects it, otherwise a
+                     consider parameter with the prior of a distortion too small to detect
+    bias             beta, the pose model's keypoint bias along the body (normalised units), with a prior;
+                     a consider parameter (Layout.considered): held at 0, its prior carried in the covariance
+    log_mu           the population's mean height, mu = mu0 e^log_mu, with a prior
+
+People alone determine only the vertical vanishing point, the horizon and h / rho (see
+service.geometry.observability): the priors on the principal point, aspect, bias and mean height are what
+makes the fit well posed, and they carry their spread into every covariance instead of being assumed away.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .vec import FloatArray, cross
+
+PARAMETER_ORDER = ("log_f", "log_fy", "aspect", "cx", "cy", "t1", "t2", "log_rho", "k", "bias", "log_mu")
+
+
+def tangent_basis(normal: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Two unit vectors orthogonal to normal and to each other."""
+    helper = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    t1 = cross(normal, helper)
+    t1 /= np.linalg.norm(t1)
+    return t1, cross(normal, t1)
+
+
+@dataclass(frozen=True)
+class Priors:
+    """Gaussian priors (1-sigma) on the nuisance parameters, in the model's units; None: not estimated."""
+
+    principal_point_n: float | None
+    aspect: float | None
+    bias_n: float | None
+    distortion_k: float | None  # spread of undetected division-model distortion; None: no lens beyond the given
+    log_mean_height: float | None  # None: the mean height is exact
+    height_std_rel: float  # individual heights' spread relative to the mean
+    lean_rad: float = 0.0  # spread of individuals' sideways lean (radians); 0: not modelled
+    # (metres above the ankle plane, 1-sigma): an installer-known camera height, already minus the ankle height.
+    camera_height_m: tuple[float, float] | None = None
+
+
+@dataclass
+class Layout:
+    """Which parameters theta holds, their prior widths, and the values of those held fixed."""
+
+    names: tuple[str, ...]
+    prior_std: FloatArray  # per entry of theta; inf where there is no prior
+    fixed: dict[str, float] = field(default_factory=dict)
+    # Parameters held at their prior mean (0) in the estimate but carried in the covariance ("consider"
+    # parameters): nearly degenerate with others, they would otherwise soak up any unmodelled trend.
+    considered: frozenset[str] = frozenset()
+
+    def __post_init__(self) -> None:
+        self.index = {name: i for i, name in enumerate(self.names)}
+        self.estimated = np.array([name not in self.considered for name in self.names], dtype=bool)
+
+    @classmethod
+    def build(cls, equal_focal: bool, focal_n: tuple[float, float] | None, priors: Priors, estimate_k: bool) -> Layout:
+        names: list[str] = []
+        std: list[float] = []
+        fixed: dict[str, float] = {}
+
+        def add(name: str, prior: float | None = None) -> None:
+            names.append(name)
+            std.append(np.inf if prior is None else prior)
+
+        if focal_n is not None:
+            fixed["log_f"], fixed["log_fy"] = float(np.log(focal_n[0])), float(np.log(focal_n[1]))
+        elif equal_focal:
+            add("log_f")
+            if priors.aspect is not None:
+                add("aspect", priors.aspect)
+        else:
+            add("log_f")
+            add("log_fy")
+        if priors.principal_point_n is not None:
+            add("cx", priors.principal_point_n)
+            add("cy", priors.principal_point_n)
+        add("t1")
+        add("t2")
+        add("log_rho")
+        if estimate_k:
+            add("k")
+        elif priors.distortion_k is not None:
+            add("k", priors.distortion_k)
+        if priors.bias_n is not None:
+            add("bias", priors.bias_n)
+        if priors.log_mean_height is not None:
+            add("log_mu", priors.log_mean_height)
+        considered = {"bias", "aspect"} | (set() if estimate_k else {"k"})
+        return cls(tuple(names), np.array(std), fixed, frozenset(considered & set(names)))
+
+    def bounds(self) -> tuple[FloatArray, FloatArray]:
+        """A box that keeps the search physical (and exp() finite) on hopeless inputs."""
+        box = {
+            "log_f": (np.log(0.02), np.log(200.0)),
+            "log_fy": (np.log(0.02), np.log(200.0)),
+            "aspect": (-0.5, 0.5),
+            "cx": (-2.0, 2.0),
+            "cy": (-2.0, 2.0),
+            "t1": (-2.0, 2.0),
+            "t2": (-2.0, 2.0),
+            "log_rho": (np.log(1e-3), np.log(1e5)),
+            "k": (-1.0, 1.0),
+            "bias": (-0.5, 0.5),
+            "log_mu": (-1.0, 1.0),
+        }
+        lower, upper = zip(*(box[name] for name in self.names), strict=True) if self.names else ((), ())
+        return np.array(lower, dtype=np.float64), np.array(upper, dtype=np.float64)
+
+    def value(self, theta: FloatArray, name: str) -> FloatArray:
+        """(K,) values of one parameter over a batch of theta rows (K, p); its fixed value (or 0) if absent."""
+        if name in self.index:
+            return theta[:, self.index[name]]
+        return np.full(len(theta), self.fixed.get(name, 0.0))
+
+
+@dataclass(frozen=True)
+class CameraBatch:
+    """K cameras (one per row of theta), shaped to broadcast against (K, n) observation arrays."""
+
+    fx: FloatArray  # (K, 1)
+    fy: FloatArray
+    c: FloatArray  # (K, 1, 2)
+    normal: FloatArray  # (K, 1, 3)
+    rho: FloatArray  # (K, 1)
+    k: FloatArray  # (K, 1)
+    bias: FloatArray  # (K, 1)
+    mu: FloatArray  # (K, 1)
+
+
+def unpack(layout: Layout, theta: FloatArray, normal0: FloatArray, mu0: float) -> CameraBatch:
+    """Cameras for a (K, p) batch of parameter rows."""
+    e1, e2 = tangent_basis(normal0)
+    log_f = layout.value(theta, "log_f")
+    if "log_fy" in layout.index or "log_fy" in layout.fixed:
+        log_fy = layout.value(theta, "log_fy")
+    else:
+        log_fy = log_f + layout.value(theta, "aspect")
+    n = normal0 + layout.value(theta, "t1")[:, None] * e1 + layout.value(theta, "t2")[:, None] * e2
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    col = np.stack((layout.value(theta, "cx"), layout.value(theta, "cy")), -1)
+    return CameraBatch(
+        fx=np.exp(log_f)[:, None],
+        fy=np.exp(log_fy)[:, None],
+        c=col[:, None, :],
+        normal=n[:, None, :],
+        rho=np.exp(layout.value(theta, "log_rho"))[:, None],
+        k=layout.value(theta, "k")[:, None],
+        bias=layout.value(theta, "bias")[:, None],
+        mu=mu0 * np.exp(layout.value(theta, "log_mu"))[:, None],
+    )
+
+
+def _body_axes(normal: FloatArray, lean: FloatArray) -> FloatArray:
+    """(K, n, 3) unit body axes: the normal tilted sideways (along the camera's x axis laid on the ground) by
+    `lean` ((K?, n) radians).
+
+    Only the sideways lean is a parameter: a lean towards or away from the camera changes a person's image
+    only as a height change would (it is the height's deviation that absorbs it), and a free lean along
+    the view on top of it lets dozens of individuals' leans trade against the focal length and tilt (the
+    posterior then drifts along the principal point's unobservable direction).
+    """
+    side = np.array([1.0, 0.0, 0.0]) - normal[..., :1] * normal
+    side = side / np.linalg.norm(side, axis=-1, keepdims=True)
+    axis = normal + lean[..., None] * side
+    return axis / np.linalg.norm(axis, axis=-1, keepdims=True)
+
+
+def predict(
+    cam: CameraBatch, ankles_n: FloatArray, heights_m: FloatArray, lean: FloatArray | None = None
+) -> FloatArray:
+    """(K, n, 2) predicted (distorted, biased) shoulder centres of people standing on latent ankles (n, 2) or
+    (K, n, 2) with heights (n,) or (K, n), their bodies leaning by `lean` ((K?, n, 2) radians, or upright)."""
+    rel = ankles_n - cam.c
+    undist = rel / (1.0 + cam.k[..., None] * np.sum(rel * rel, -1, keepdims=True))
+    rx, ry = undist[..., 0] / cam.fx, undist[..., 1] / cam.fy
+    n = cam.normal
+    denom = np.minimum(rx * n[..., 0] + ry * n[..., 1] + n[..., 2], -1e-9)  # a ray that misses the ground
+    t = -cam.rho / denom
+    up = n if lean is None else _body_axes(n, lean)
+    xt = rx * t + heights_m * up[..., 0]
+    yt = ry * t + heights_m * up[..., 1]
+    zt = np.maximum(t + heights_m * up[..., 2], 1e-9)
+    top_u = np.stack((cam.fx * xt / zt, cam.fy * yt / zt), -1)
+    disc = np.maximum(1.0 - 4.0 * cam.k[..., None] * np.sum(top_u * top_u, -1, keepdims=True), 0.0)
+    top = cam.c + top_u * (2.0 / (1.0 + np.sqrt(disc)))
+    along = top - ankles_n
+    length = np.maximum(np.sqrt(np.sum(along * along, -1, keepdims=True)), 1e-12)
+    return top + cam.bias[..., None] * along / length
+
+
+@dataclass(frozen=True)
+class Observations:
+    """Measured centres (normalised), their noise, and which individual each observation is."""
+
+    tops_n: FloatArray  # (n, 2)
+    bottoms_n: FloatArray  # (n, 2)
+    ankle_std_n: FloatArray  # (n,)
+    top_std_n: FloatArray  # (n,)
+    track: np.ndarray  # (n,) int in [0, T)
+    tracks: int
+
+    def residuals(self, cam: CameraBatch, ankles_n: FloatArray, person: FloatArray) -> FloatArray:
+        """(K, n, 4) whitened residuals (ankle 2, shoulder 2) of people whose individual parameters are
+        `person` ((K?, n, q): the height deviation, h = mu (1 + deviation), then the sideways lean, if
+        modelled)."""
+        lean = person[..., 1] if person.shape[-1] == 2 else None
+        top = predict(cam, ankles_n, cam.mu * (1.0 + person[..., 0]), lean)
+        ankle_r = np.broadcast_to((ankles_n - self.bottoms_n) / self.ankle_std_n[:, None], top.shape)
+        return np.concatenate((ankle_r, (top - self.tops_n) / self.top_std_n[:, None]), -1)

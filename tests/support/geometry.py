@@ -1,0 +1,38 @@
+"""The geometry tests' helpers: synthetic scenes, the problem fields of the paper's ideal camera, angle errors."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bench.simulate import Scene, SceneConfig, draw_scene
+from service.geometry import Calibration, CalibrationProblem, SolveOptions, calibrate
+
+
+def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b)), a @ b)))
+
+
+def scene(seed: int, **overrides: object) -> Scene:
+    square = bool(overrides.pop("surveillance", False))
+    config = SceneConfig.surveillance(**overrides) if square else SceneConfig.paper(**overrides)
+    return draw_scene(config, np.random.default_rng(seed))
+
+
+def solve(s: Scene, options: SolveOptions | None = None, height_m: float = 1.7, **problem: object) -> Calibration:
+    """calibrate() on a scene's pixels with its image size; problem holds CalibrationProblem's other fields."""
+    return calibrate(s.tops_px, s.bottoms_px, CalibrationProblem(s.image_size, height_m, **problem), options)  # type: ignore[arg-type]
+
+
+def ideal(s: Scene) -> dict[str, object]:
+    """The problem fields that say what the paper's simulator assumes: the principal point at the image centre,
+    exactly square pixels, no lens, the crowd's mean height exactly the prior, an unbiased pose model and
+    ankles on the ground. With them the model matches the simulator exactly, so sigmas must be calibrated
+    and noise-free scenes exact; without them the priors widen every sigma (tests/geometry/test_coverage.py)."""
+    return {
+        "principal_point_px": (s.image_size[0] / 2.0, s.image_size[1] / 2.0),
+        "aspect_std": 0.0,
+        "lens_corner_std": 0.0,
+        "mean_height_std": 0.0,
+        "keypoint_bias_std": 0.0,
+        "ankle_height_m": 0.0,
+    }
