@@ -6,7 +6,7 @@ version stored before this has no camera model (measured as before: no lens, ank
 noise independent of a person's size) and no grade (it alerts as before).
 
 Revision ID: 0010
-Revises: 0011
+Revises: 0009
 Create Date: 2026-11-25
 """
 
@@ -18,7 +18,7 @@ import sqlalchemy as sa
 from alembic import op
 
 revision: str = "0010"
-down_revision: str | None = "0011"
+down_revision: str | None = "0009"
 branch_labels: str | Sequence[str] | None = None
 depends_on: str | Sequence[str] | None = None
 
