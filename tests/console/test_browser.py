@@ -183,7 +183,7 @@ def test_an_admin_sees_cameras_history_pictures_and_failing_webhooks(served: Con
         by_camera = {row[0]: row for row in rows}
         assert by_camera["lobby"][1] == "uncalibrated" and by_camera["lobby"][3] == "30"
         street = by_camera["street"]
-        assert street[1] == "calibrated" and street[2].split(" · ")[0] in ("good", "fair", "poor"), street
+        assert street[1] == "calibrated" and street[2].split(" · ")[0] in ("good", "rough", "unreliable"), street
         assert street[4].endswith(" px") and street[5].endswith(" m")
         # `lobby` is first in id order and selected; picking `street` shows its history and pictures.
         driver.execute_script("document.querySelector('#cameras tr[data-camera=street] button').click()")

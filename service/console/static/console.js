@@ -167,16 +167,15 @@
 
   // --------------------------------------------------------------------------------------------------- cameras
 
-  // How sure the current calibration is, from the 1-sigma of its focal length (the least certain of its numbers).
+  // What the current calibration is worth: the service's own grade (good, rough, unreliable: the predicted 2-sigma
+  // error of a 2 m distance at the camera's typical range), with that error and what would improve it.
   function quality(status) {
-    if (status.status !== "calibrated" || !status.fx_px) return { text: "–", grade: "none" };
-    const u = status.uncertainty || {};
-    const relative = u.fx_std_px ? u.fx_std_px / status.fx_px : null;
-    const grade = relative === null ? "unknown" : relative < 0.03 ? "good" : relative < 0.1 ? "fair" : "poor";
-    const parts = [relative === null ? "no sigma" : grade];
-    if (relative !== null) parts.push(`f ±${(100 * relative).toFixed(1)}%`);
-    if (status.inliers && status.people_used) parts.push(`${Math.round((100 * status.inliers) / status.people_used)}% inliers`);
-    return { text: parts.join(" · "), grade };
+    if (status.status !== "calibrated" || !status.quality) return { text: "–", grade: "none", title: "" };
+    const q = status.quality;
+    const parts = [q.grade];
+    if (q.distance_2sigma_m !== null) parts.push(`2 m ±${fixed(q.distance_2sigma_m, 2)} m`);
+    if (q.grade === "unreliable") parts.push("no alerts");
+    return { text: parts.join(" · "), grade: q.grade, title: [...q.reasons, ...q.advice].join("; ") };
   }
 
   // "uncalibrated: camera moved 2026-11-25 00:40:02 UTC · epoch 2": why a camera that had a calibration has none.
@@ -209,10 +208,12 @@
       const name = element("td");
       name.append(pick);
       const q = quality(status);
+      const grade = element("td", q.text, `grade ${q.grade}`);
+      grade.title = q.title;
       row.append(
         name,
         element("td", statusText(status), `status ${status.status}`),
-        element("td", q.text, `grade ${q.grade}`),
+        grade,
         element("td", status.status === "uncalibrated" ? status.people_needed : `${status.people_needed} to the next solve`),
         element("td", status.fx_px ? `${fixed(status.fx_px, 0)} px` : "–"),
         element("td", status.rho_m ? `${fixed(status.rho_m, 2)} m` : "–"),
