@@ -82,14 +82,7 @@ def test_one_wild_person_in_every_frame_is_not_a_move() -> None:
     ("name", "move"),
     [
         ("pan 10 and tilt 7", lambda c: c.panned(10.0).tilted(7.0)),
-        pytest.param(
-            "zoom x1.2",
-            lambda c: c.zoomed(1.2),
-            # Merging issue 16's geometry (priors on the principal point, height and lens; ankles 7 cm up) with the
-            # movement monitor: seed 0 still alarms 6 frames after the move, but dates it 25 frames early (bound
-            # 12). Not the lens (25 without it) nor the size-dependent noise (24 with it): left to the lead.
-            marks=pytest.mark.xfail(reason="zoom change point dated 25 frames early after the issue 16 geometry"),
-        ),
+        ("zoom x1.2", lambda c: c.zoomed(1.2)),
     ],
 )
 def test_a_move_is_found_within_seconds_and_dated_to_its_first_frame(name: str, move: object) -> None:
