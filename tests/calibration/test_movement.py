@@ -80,10 +80,7 @@ def test_one_wild_person_in_every_frame_is_not_a_move() -> None:
 
 @pytest.mark.parametrize(
     ("name", "move"),
-    [
-        ("pan 10 and tilt 7", lambda c: c.panned(10.0).tilted(7.0)),
-        ("zoom x1.2", lambda c: c.zoomed(1.2)),
-    ],
+    [("pan 10 and tilt 7", lambda c: c.panned(10.0).tilted(7.0)), ("zoom x1.2", lambda c: c.zoomed(1.2))],
 )
 def test_a_move_is_found_within_seconds_and_dated_to_its_first_frame(name: str, move: object) -> None:
     scenario = Scenario(name, move=move, move_at_s=300.0, duration_s=360.0)  # type: ignore[arg-type]
@@ -93,8 +90,8 @@ def test_a_move_is_found_within_seconds_and_dated_to_its_first_frame(name: str, 
         assert len(outcome.alarms) >= 1
         alarm_frame, change_point = outcome.alarms[0]
         assert move_frame <= alarm_frame <= move_frame + 40  # 20 s at 2 fps
-        # Dated at or a little before the move: no frame of the new view is left measured with the old calibration.
-        assert move_frame - 12 <= change_point <= move_frame
+        # Dated at or before the move (erring early by seconds): no new-view frame keeps an old-epoch result.
+        assert move_frame - 30 <= change_point <= move_frame
 
 
 def test_a_pure_pan_is_invisible_to_people() -> None:

@@ -81,8 +81,9 @@ def _post_image(app: Served, camera_id: str, image: Path) -> None:
     app.wait_for(lambda: app.http("GET", url)[1]["status"] == "done", "the photo measured")
 
 
-def _stream(app: Served, camera_id: str) -> dict[str, Any]:
-    """Frames of a simulated surveillance camera over the last minutes, until they are all measured."""
+def _stream(app: Served, camera_id: str, frame_prefix: str | None = None, create: bool = True) -> dict[str, Any]:
+    """Frames of a simulated surveillance camera over the last minutes, until they are all measured (`create`: the
+    camera first); the last frame's body."""
     scene = draw_scene(SceneConfig.surveillance(n_people=FRAMES * PEOPLE_PER_FRAME), np.random.default_rng(5))
     size = {
         "image_width_px": scene.image_size[0],
@@ -90,14 +91,15 @@ def _stream(app: Served, camera_id: str) -> dict[str, Any]:
         "person_height_m": 1.7,
         "keep_images": True,
     }
-    assert app.http("PUT", f"/v1/cameras/{camera_id}", size)[0] == 201
+    if create:
+        assert app.http("PUT", f"/v1/cameras/{camera_id}", size)[0] == 201
     now = datetime.now(UTC)
     urls = []
     for k in range(FRAMES):
         people = slice(k * PEOPLE_PER_FRAME, (k + 1) * PEOPLE_PER_FRAME)
         body = {
             "timestamp": (now - timedelta(minutes=2 * (FRAMES - k))).isoformat(),
-            "frame_id": f"{camera_id}-{k}",
+            "frame_id": f"{frame_prefix or camera_id}-{k}",
             "people": [
                 {"keypoints": coco_person(tuple(top), tuple(bottom))}
                 for top, bottom in zip(scene.tops_px[people], scene.bottoms_px[people], strict=True)
@@ -271,3 +273,27 @@ def test_a_wrong_key_is_refused_with_a_message(served: Console) -> None:
         assert driver.execute_script("return sessionStorage.length") == 0
         assert wrong not in driver.current_url and driver.get_cookies() == []
         driver.save_screenshot(str(_screenshots() / "console-wrong-key.png"))
+
+
+def test_a_reset_camera_says_why_and_its_history_marks_the_new_epoch(served: Console) -> None:
+    """Runs last: it resets `street` and calibrates it again from the same people, in epoch 2."""
+    app = served.app
+    assert app.http("DELETE", "/v1/cameras/street/calibration")[0] in (200, 202, 204)
+    with chromium(1400, 900) as driver:
+        _open(driver, app.base, ADMIN_KEY)
+        status = "document.querySelector('#cameras tr[data-camera=street] td:nth-child(2)')"
+        text = _wait(driver, f"{status} && {status}.textContent", "street's status")
+        assert text == "uncalibrated: calibration reset · epoch 2", text
+        _stream(app, "street", frame_prefix="street-epoch2", create=False)
+        _wait(driver, f"{status}.textContent.startsWith('calibrated · epoch 2')", "street calibrated again")
+        driver.execute_script("document.querySelector('#cameras tr[data-camera=street] button').click()")
+        marks = _wait(driver, "document.querySelectorAll('#history line.epoch').length", "the epoch marks")
+        assert marks == 4  # one per chart
+        texts = driver.execute_script("return [...document.querySelectorAll('#history text')].map(t => t.textContent)")
+        labels = [text for text in texts if text.startswith("epoch")]
+        assert labels == ["epoch 2"] * 4
+        # Each epoch its own line and 1-sigma band: the solves before the reset are not joined to those after.
+        assert driver.execute_script("return document.querySelectorAll('#history polyline').length") == 8
+        assert driver.execute_script("return document.querySelectorAll('#history .band').length") == 6
+        _assert_no_browser_errors(driver)
+        driver.save_screenshot(str(_screenshots() / "console-epochs.png"))

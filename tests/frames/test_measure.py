@@ -64,8 +64,8 @@ def test_no_people_is_an_empty_result() -> None:
 def _shoulders_at(scene_cal: object, ground_m: np.ndarray, height_m: float) -> tuple[float, float]:
     """Pixel of a point `height_m` straight above a ground point (N points up)."""
     point = ground_m + height_m * scene_cal.normal  # type: ignore[attr-defined]
-    pixel = scene_cal.K @ point  # type: ignore[attr-defined]
-    return float(pixel[0] / pixel[2]), float(pixel[1] / pixel[2])
+    pixel = scene_cal.camera.project(point[None])[0]  # type: ignore[attr-defined]
+    return float(pixel[0]), float(pixel[1])
 
 
 def test_people_who_are_not_evidence_are_placed_measured_and_flagged_with_a_wider_sigma() -> None:

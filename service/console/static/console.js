@@ -179,6 +179,19 @@
     return { text: parts.join(" · "), grade };
   }
 
+  // "uncalibrated: camera moved 2026-11-25 00:40:02 UTC · epoch 2": why a camera that had a calibration has none.
+  function statusText(status) {
+    const reasons = { camera_moved: "camera moved", reset: "calibration reset", image_size_changed: "image size changed" };
+    let text = status.status;
+    if (status.reason) {
+      text += `: ${reasons[status.reason] || status.reason}`;
+      if (status.reason === "camera_moved" && status.moved_at) text += ` ${time(status.moved_at)}`;
+    }
+    if (status.epoch > 1) text += ` · epoch ${status.epoch}`;
+    if (status.last_failure) text += ` (last solve failed: ${status.last_failure})`;
+    return text;
+  }
+
   function drawCameras(cameras, statuses) {
     const body = $("cameras").querySelector("tbody");
     body.replaceChildren();
@@ -196,10 +209,9 @@
       const name = element("td");
       name.append(pick);
       const q = quality(status);
-      const failure = status.last_failure ? ` (last solve failed: ${status.last_failure})` : "";
       row.append(
         name,
-        element("td", status.status + failure, `status ${status.status}`),
+        element("td", statusText(status), `status ${status.status}`),
         element("td", q.text, `grade ${q.grade}`),
         element("td", status.status === "uncalibrated" ? status.people_needed : `${status.people_needed} to the next solve`),
         element("td", status.fx_px ? `${fixed(status.fx_px, 0)} px` : "–"),
@@ -233,7 +245,7 @@
       box.append(element("p", "No calibration yet.", "muted"));
       return;
     }
-    const series = (value, sigma) => solves.map((v) => ({ x: v.version, y: value(v), s: sigma(v) }));
+    const series = (value, sigma) => solves.map((v) => ({ x: v.version, y: value(v), s: sigma(v), epoch: v.epoch }));
     const u = (v) => v.uncertainty || {};
     box.append(
       chart("focal length f", "px", 0, series((v) => v.fx_px, (v) => u(v).fx_std_px)),
@@ -268,12 +280,27 @@
     const px = (x) => (x1 === x0 ? (left + W - right) / 2 : left + ((x - x0) / (x1 - x0)) * (W - left - right));
     const py = (y) => top + (1 - (y - y0) / (y1 - y0)) * (H - top - bottom);
     const coords = (list) => list.map(([x, y]) => `${px(x).toFixed(1)},${py(y).toFixed(1)}`).join(" ");
-    if (valid.some((p) => p.s)) {
-      const upper = valid.map((p) => [p.x, p.y + (p.s || 0)]);
-      const lower = valid.map((p) => [p.x, p.y - (p.s || 0)]).reverse();
-      figure.append(svg("polygon", { points: coords([...upper, ...lower]), class: "band" }));
+    // Each epoch (a new one when the camera moved, or was reset) its own line and band, after a dashed mark.
+    const runs = [];
+    valid.forEach((p, k) => {
+      if (k === 0 || p.epoch !== valid[k - 1].epoch) {
+        runs.push([]);
+        if (k > 0) {
+          const x = ((px(valid[k - 1].x) + px(p.x)) / 2).toFixed(1);
+          figure.append(svg("line", { x1: x, x2: x, y1: top - 4, y2: H - bottom, class: "epoch" }));
+          figure.append(svg("text", { x, y: H - 4, class: "axis", "text-anchor": "middle" }, `epoch ${p.epoch}`));
+        }
+      }
+      runs[runs.length - 1].push(p);
+    });
+    for (const run of runs) {
+      if (run.some((p) => p.s)) {
+        const upper = run.map((p) => [p.x, p.y + (p.s || 0)]);
+        const lower = run.map((p) => [p.x, p.y - (p.s || 0)]).reverse();
+        figure.append(svg("polygon", { points: coords([...upper, ...lower]), class: "band" }));
+      }
+      figure.append(svg("polyline", { points: coords(run.map((p) => [p.x, p.y])), class: "line" }));
     }
-    figure.append(svg("polyline", { points: coords(valid.map((p) => [p.x, p.y])), class: "line" }));
     for (const p of valid) figure.append(svg("circle", { cx: px(p.x).toFixed(1), cy: py(p.y).toFixed(1), r: 2.5, class: "dot" }));
     figure.append(svg("text", { x: left, y: H - 4, class: "axis" }, `v${x0}`));
     if (x1 !== x0) figure.append(svg("text", { x: W - right, y: H - 4, class: "axis", "text-anchor": "end" }, `v${x1}`));
