@@ -134,8 +134,11 @@ def run(scenario: Scenario, seed: int) -> Outcome:
     tops, bottoms = _frames(scenario, seed)
     pooled_t = np.vstack(tops[:CALIBRATION_FRAMES])
     pooled_b = np.vstack(bottoms[:CALIBRATION_FRAMES])
+    dt = 1.0 / scenario.fps
+    # Frame times, as the calibration worker passes them: one walker's observations are one individual.
+    times_s = np.concatenate([np.full(len(t), k * dt) for k, t in enumerate(tops[:CALIBRATION_FRAMES])])
     problem = CalibrationProblem(scenario.camera.image_size, scenario.crowd.height_m)
-    solve = solve_evidence(pooled_t, pooled_b, problem, cap=2000)
+    solve = solve_evidence(pooled_t, pooled_b, problem, cap=2000, times_s=times_s)
     if solve.calibration is None:
         raise RuntimeError(f"{scenario.name}: the calibration failed: {solve.error}")
     cal = solve.calibration
@@ -144,7 +147,6 @@ def run(scenario: Scenario, seed: int) -> Outcome:
     monitor = MovementMonitor.start(camera)
     alarms: list[tuple[int, int]] = []
     max_statistic = 0.0
-    dt = 1.0 / scenario.fps
     for start in range(CALIBRATION_FRAMES, len(tops), CHUNK):
         stop = min(start + CHUNK, len(tops))
         index = np.concatenate([np.full(len(tops[k]), k - start) for k in range(start, stop)])

@@ -8,22 +8,36 @@ centre or on a given principal point, scaled by (W + H) / 4). Observation o of i
     X_B          = -rho / (N . r) r,  r = ((u_o - c)_x / fx, (u_o - c)_y / fy, 1)     the ankle on the plane
     X_T          = X_B + h_t N                      the shoulder centre straight above it
     s_o          = c + D_k(fx X_T,x / Z, fy X_T,y / Z)       its distorted image
-    top_o        = s_o + beta (s_o - a_o) / |s_o - a_o|      plus the pose model's bias along the body
+    d_o          = R(a_t) (s_o - a_o)                  the segment turned by the individual's lean a_t
+    top_o        = a_o + d_o + beta d_o / |d_o|         plus the pose model's bias along the body
 
 and the measured ankle and shoulder centres are a_o and top_o plus Gaussian noise: sigma on the ankle,
 sqrt(sigma^2 + (lambda l_o)^2) on the shoulder, where l_o is the segment's length (walking people lean, so the
-shoulders scatter in proportion to the person's size). Each individual also has a sideways lean a_t ~ N(0,
-lambda_t), shared by their observations (a walking posture does not change from frame to
-frame, so thirty observations of one leaning person are one draw of a lean, like one draw of a height):
-X_T = X_B + h_t normalise(N + a_t s) with s the camera's x axis laid on the ground (only the sideways lean:
-see _body_axes). Heights h_t = mu (1 + delta_t), delta_t ~ N(0,
-sigma_h / mu0), belong to individuals, not to observations: one person seen in thirty frames is one draw of
-a height, not thirty (on the Oxford Town Centre clip a few short people walking near the camera otherwise
-tilt the whole ground by 2 degrees). The spread is relative on purpose: people's images fix only h / rho,
-so scaling rho and every height together changes no residual, and an absolute spread would reward the
-smaller world (a jointly fitted scale then shrinks by the fitted heights' relative variance times the
-mean-height prior's information: 8 % on a 100-person scene). With delta relative only mu's prior (or a
-known camera height) sets the scale.
+shoulders scatter in proportion to the person's size). Each individual also has a lean a_t ~ N(0, lambda_t),
+shared by their observations (a walking posture does not change from frame to frame, so thirty observations
+of one leaning person are one draw of a lean, like one draw of a height): the image segment from a_o to s_o
+turned about the ankle by a_t radians. A lean along the segment is a height change (the height absorbs it),
+so the turn is the lean's only free part.
+
+The lean is an angle in the image, not in the world, on purpose. Its spread lambda_t is measured in the image
+(the direction residuals over segment length, posterior.estimate_noise_and_lean), and people leave one
+direction of the camera undetermined: the principal point's offset across the horizon, traded against f and
+the tilt, keeps the vertical vanishing point, the horizon and every person's image. A world lean's image size
+depends on that direction (a vertical's image foreshortens with the angle between the ray and the vertical, a
+sideways lean does not), so a prior on world radians has a gradient along the flat direction: the fit shrinks
+every individual's lean by steepening the view, until the principal point's prior stops it. On a street crowd
+seen at 2 fps for three minutes (bench.moving_camera: 35 people with 2 degree leans, linked into 133 tracks)
+that pulled f 9 % short and cy 135 px up. In the image the prior costs the same for every camera along the
+flat direction, so it cannot pull. The price is small: a constant world lean seen across the view turns its
+image by a slightly varying angle, and the per-observation noise keeps the rest.
+
+Heights h_t = mu (1 + delta_t), delta_t ~ N(0, sigma_h / mu0), belong to individuals, not to observations: one
+person seen in thirty frames is one draw of a height, not thirty (on the Oxford Town Centre clip a few short
+people walking near the camera otherwise tilt the whole ground by 2 degrees). The spread is relative on
+purpose: people's images fix only h / rho, so scaling rho and every height together changes no residual, and
+an absolute spread would reward the smaller world (a jointly fitted scale then shrinks by the fitted heights'
+relative variance times the mean-height prior's information: 8 % on a 100-person scene). With delta relative
+only mu's prior (or a known camera height) sets the scale.
 
 Camera parameters theta, each present only when it is estimated (`Layout`):
 
@@ -73,7 +87,7 @@ class Priors:
     distortion_k: float | None  # spread of undetected division-model distortion; None: no lens beyond the given
     log_mean_height: float | None  # None: the mean height is exact
     height_std_rel: float  # individual heights' spread relative to the mean
-    lean_rad: float = 0.0  # spread of individuals' sideways lean (radians); 0: not modelled
+    lean_rad: float = 0.0  # spread of individuals' lean, an angle in the image (radians); 0: not modelled
     # (metres above the ankle plane, 1-sigma): an installer-known camera height, already minus the ankle height.
     camera_height_m: tuple[float, float] | None = None
 
@@ -191,42 +205,29 @@ def unpack(layout: Layout, theta: FloatArray, normal0: FloatArray, mu0: float) -
     )
 
 
-def _body_axes(normal: FloatArray, lean: FloatArray) -> FloatArray:
-    """(K, n, 3) unit body axes: the normal tilted sideways (along the camera's x axis laid on the ground) by
-    `lean` ((K?, n) radians).
-
-    Only the sideways lean is a parameter: a lean towards or away from the camera changes a person's image
-    only as a height change would (it is the height's deviation that absorbs it), and a free lean along
-    the view on top of it lets dozens of individuals' leans trade against the focal length and tilt (the
-    posterior then drifts along the principal point's unobservable direction).
-    """
-    side = np.array([1.0, 0.0, 0.0]) - normal[..., :1] * normal
-    side = side / np.linalg.norm(side, axis=-1, keepdims=True)
-    axis = normal + lean[..., None] * side
-    return axis / np.linalg.norm(axis, axis=-1, keepdims=True)
-
-
 def predict(
     cam: CameraBatch, ankles_n: FloatArray, heights_m: FloatArray, lean: FloatArray | None = None
 ) -> FloatArray:
     """(K, n, 2) predicted (distorted, biased) shoulder centres of people standing on latent ankles (n, 2) or
-    (K, n, 2) with heights (n,) or (K, n), their bodies leaning by `lean` ((K?, n, 2) radians, or upright)."""
+    (K, n, 2) with heights (n,) or (K, n), their image segments turned about the ankle by `lean` ((K?, n)
+    radians, or upright; see the module docstring for why the lean is an angle in the image)."""
     rel = ankles_n - cam.c
     undist = rel / (1.0 + cam.k[..., None] * np.sum(rel * rel, -1, keepdims=True))
     rx, ry = undist[..., 0] / cam.fx, undist[..., 1] / cam.fy
     n = cam.normal
     denom = np.minimum(rx * n[..., 0] + ry * n[..., 1] + n[..., 2], -1e-9)  # a ray that misses the ground
     t = -cam.rho / denom
-    up = n if lean is None else _body_axes(n, lean)
-    xt = rx * t + heights_m * up[..., 0]
-    yt = ry * t + heights_m * up[..., 1]
-    zt = np.maximum(t + heights_m * up[..., 2], 1e-9)
+    xt = rx * t + heights_m * n[..., 0]
+    yt = ry * t + heights_m * n[..., 1]
+    zt = np.maximum(t + heights_m * n[..., 2], 1e-9)
     top_u = np.stack((cam.fx * xt / zt, cam.fy * yt / zt), -1)
     disc = np.maximum(1.0 - 4.0 * cam.k[..., None] * np.sum(top_u * top_u, -1, keepdims=True), 0.0)
-    top = cam.c + top_u * (2.0 / (1.0 + np.sqrt(disc)))
-    along = top - ankles_n
+    along = cam.c + top_u * (2.0 / (1.0 + np.sqrt(disc))) - ankles_n
+    if lean is not None:
+        cos, sin = np.cos(lean), np.sin(lean)
+        along = np.stack((cos * along[..., 0] - sin * along[..., 1], sin * along[..., 0] + cos * along[..., 1]), -1)
     length = np.maximum(np.sqrt(np.sum(along * along, -1, keepdims=True)), 1e-12)
-    return top + cam.bias[..., None] * along / length
+    return ankles_n + along + cam.bias[..., None] * along / length
 
 
 @dataclass(frozen=True)
@@ -242,8 +243,8 @@ class Observations:
 
     def residuals(self, cam: CameraBatch, ankles_n: FloatArray, person: FloatArray) -> FloatArray:
         """(K, n, 4) whitened residuals (ankle 2, shoulder 2) of people whose individual parameters are
-        `person` ((K?, n, q): the height deviation, h = mu (1 + deviation), then the sideways lean, if
-        modelled)."""
+        `person` ((K?, n, q): the height deviation, h = mu (1 + deviation), then the lean, if
+        modelled, radians in the image)."""
         lean = person[..., 1] if person.shape[-1] == 2 else None
         top = predict(cam, ankles_n, cam.mu * (1.0 + person[..., 0]), lean)
         ankle_r = np.broadcast_to((ankles_n - self.bottoms_n) / self.ankle_std_n[:, None], top.shape)

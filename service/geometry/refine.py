@@ -9,7 +9,7 @@ spread into theta.
 
 Levenberg-Marquardt with the structure of bundle adjustment: the normal equations are arrow-shaped, so
 each step eliminates the observations' 2x2 ankle blocks, then each individual's q x q block (q = 1: the
-height; q = 2: height and sideways lean, summed over the individual's observations), and solves the small reduced
+height; q = 2: height and lean, summed over the individual's observations), and solves the small reduced
 system in theta (the Schur complement). The same complement, undamped, is the inverse of theta's marginal
 covariance. Every step costs O(n p^2) for n observations and p camera parameters; Jacobians are central
 differences, evaluated for all observations and all perturbed cameras in two vectorised passes.

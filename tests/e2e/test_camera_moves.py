@@ -14,7 +14,6 @@ from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from bench.moving_camera import CameraPose, Crowd, CrowdConfig
 from tests.support.receiver import Receiver
@@ -39,11 +38,6 @@ def frame_body(k: int, tops: np.ndarray, bottoms: np.ndarray) -> dict[str, objec
     }
 
 
-@pytest.mark.xfail(
-    reason="issue 16 merge: the calibration worker now links walkers by frame time, and on this crowd (children and "
-    "sitting people walking through many frames) the per-individual solve lands 9 % short on f with cy 135 px up "
-    "(1277 px, cy 405; 1400 px exact without the frame times), so the move is not found; left to the lead",
-)
 def test_a_panned_and_tilted_camera_is_found_and_calibrated_again(tmp_path: Path) -> None:
     before = CameraPose()
     after = before.panned(10.0).tilted(7.0)
@@ -116,8 +110,10 @@ def test_a_panned_and_tilted_camera_is_found_and_calibrated_again(tmp_path: Path
 
             # Said so: a webhook with reason camera_moved, and the moves counter.
             app.wait_for(lambda: len(receiver.received()) >= 2, "the status webhooks")
-            reasons = [request.verify(subscription["secret"])["data"]["reason"] for request in receiver.received()]
-            assert "camera_moved" in reasons
+            changes = [request.verify(subscription["secret"])["data"] for request in receiver.received()]
+            assert [(c["previous_status"], c["status"]) for c in changes if c["reason"] == "camera_moved"] == [
+                ("calibrated", "uncalibrated")
+            ], changes
             metrics = app.raw("GET", "/metrics")[1].decode()
             assert 'posemetry_camera_moves_total{camera="door"} 1.0' in metrics
     finally:
