@@ -6,7 +6,7 @@ import asyncio
 import re
 import uuid
 from collections.abc import Sequence
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Path, Query, Request, Response, status
 from sqlalchemy.orm import Session
@@ -291,6 +291,23 @@ def _accepted(frame: Frame, created: bool, url: str, response: Response) -> Fram
 # --------------------------------------------------------------------------------------------------- reading
 
 
+def _frame_fields(frame: Frame) -> dict[str, Any]:
+    """What a frame's full answer and its list summary share, read from the stored row."""
+    return {
+        "frame_id": frame.id,
+        "camera_id": frame.camera_id,
+        "client_frame_id": frame.client_frame_id,
+        "source": frame.source,
+        "timestamp": frame.timestamp,
+        "received_at": frame.received_at,
+        "status": frame.status,
+        "people": frame.people,
+        "calibration_version": frame.calibration_version,
+        "processed_at": frame.processed_at,
+        "error": frame.error,
+    }
+
+
 def _links(url: str, image_kept: bool) -> dict[str, str]:
     links = {"topdown": f"{url}/topdown.png"}
     if image_kept:
@@ -305,21 +322,11 @@ def frame_json(
     shape): validating and re-encoding 190 pairs per poll cost three times as much as the rest of the answer."""
     links = _links(frame_url(frame.camera_id, frame.id), image_kept)
     envelope = FrameOut(
-        frame_id=frame.id,
-        camera_id=frame.camera_id,
-        client_frame_id=frame.client_frame_id,
-        source=frame.source,  # type: ignore[arg-type]
-        timestamp=frame.timestamp,
-        received_at=frame.received_at,
-        status=frame.status,  # type: ignore[arg-type]
-        people=frame.people,
+        **_frame_fields(frame),
         pose_model=frame.pose_model,
         detections=detections,
         image_kept=image_kept,
         links=links,
-        calibration_version=frame.calibration_version,
-        processed_at=frame.processed_at,
-        error=frame.error,
         result=None,
     ).model_dump_json(exclude={"result"})
     return f'{envelope[:-1]},"result":{result_json or "null"}}}'
@@ -368,18 +375,8 @@ def _summary(listed: listing.ListedFrame) -> FrameSummary:
     frame = listed.frame
     url = frame_url(frame.camera_id, frame.id)
     return FrameSummary(
-        frame_id=frame.id,
-        camera_id=frame.camera_id,
-        client_frame_id=frame.client_frame_id,
-        source=frame.source,  # type: ignore[arg-type]
-        timestamp=frame.timestamp,
-        received_at=frame.received_at,
-        status=frame.status,  # type: ignore[arg-type]
-        people=frame.people,
+        **_frame_fields(frame),
         violations=listed.violations,
-        calibration_version=frame.calibration_version,
-        processed_at=frame.processed_at,
-        error=frame.error,
         image_kept=listed.image_kept,
         url=url,
         links=_links(url, listed.image_kept),

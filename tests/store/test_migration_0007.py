@@ -8,13 +8,9 @@ from sqlalchemy import inspect, text
 
 from service.store import make_engine
 from service.store.migrate import alembic_config, upgrade
+from tests.support.store import insert_raw_camera_and_frame
 
 pytestmark = pytest.mark.both_backends
-
-FRAME_ID = {
-    "sqlite": "00000000000000000000000000000001",
-    "postgresql": "00000000-0000-0000-0000-000000000001",
-}
 
 
 def _frame_columns(url: str) -> set[str]:
@@ -26,26 +22,12 @@ def _frame_columns(url: str) -> set[str]:
         engine.dispose()
 
 
-def test_0007_adds_the_digest_column_and_downgrades_without_losing_frames(database_url: str, backend: str) -> None:
+def test_0007_adds_the_digest_column_and_downgrades_without_losing_frames(database_url: str) -> None:
     upgrade(database_url, "0006")
     engine = make_engine(database_url)
     try:
         with engine.begin() as connection:
-            connection.execute(
-                text(
-                    "INSERT INTO cameras (id, image_width_px, image_height_px, person_height_m, equal_focal, "
-                    "distance_threshold_m, created_at, updated_at) VALUES ('c', 640, 480, 1.3, true, 1.8, "
-                    "'2026-01-01 00:00:00', '2026-01-01 00:00:00')"
-                )
-            )
-            connection.execute(
-                text(
-                    "INSERT INTO frames (id, camera_id, client_frame_id, timestamp, received_at, source, status, "
-                    "people) VALUES (:id, 'c', 'f-1', '2026-01-01 00:00:00', '2026-01-01 00:00:00', 'keypoints', "
-                    "'pending', 0)"
-                ),
-                {"id": FRAME_ID[backend]},
-            )
+            insert_raw_camera_and_frame(connection, people=0, client_frame_id="f-1")
         assert "content_sha256" not in _frame_columns(database_url)
         upgrade(database_url, "0007")
         assert "content_sha256" in _frame_columns(database_url)

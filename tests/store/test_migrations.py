@@ -17,6 +17,7 @@ from service.settings import get_settings
 from service.store import make_engine
 from service.store.migrate import alembic_config, current_revision, upgrade
 from service.store.models import Base
+from tests.support.store import insert_raw_camera_and_frame
 
 
 def head_revision() -> str | None:
@@ -119,24 +120,7 @@ def test_0002_packs_stored_keypoints_and_unpacks_them_on_downgrade(database_url:
     engine = make_engine(database_url)
     try:
         with engine.begin() as connection:
-            connection.execute(
-                text(
-                    "INSERT INTO cameras (id, image_width_px, image_height_px, person_height_m, equal_focal, "
-                    "distance_threshold_m, created_at, updated_at) VALUES ('c', 640, 480, 1.3, true, 1.8, "
-                    "'2026-01-01 00:00:00', '2026-01-01 00:00:00')"
-                )
-            )
-            connection.execute(
-                text(
-                    "INSERT INTO frames (id, camera_id, timestamp, received_at, source, status, people) VALUES "
-                    "('00000000000000000000000000000001', 'c', '2026-01-01 00:00:00', '2026-01-01 00:00:00', "
-                    "'keypoints', 'pending', 2)"
-                    if engine.dialect.name == "sqlite"
-                    else "INSERT INTO frames (id, camera_id, timestamp, received_at, source, status, people) VALUES "
-                    "('00000000-0000-0000-0000-000000000001', 'c', '2026-01-01 00:00:00+00', "
-                    "'2026-01-01 00:00:00+00', 'keypoints', 'pending', 2)"
-                )
-            )
+            insert_raw_camera_and_frame(connection, people=2)
             frame_id = connection.execute(text("SELECT id FROM frames")).scalar_one()
             for index, value in enumerate((json.dumps(keypoints), None)):
                 connection.execute(

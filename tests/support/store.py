@@ -7,7 +7,7 @@ from collections.abc import Sequence
 from datetime import UTC, datetime
 from typing import Any
 
-from sqlalchemy import func, select
+from sqlalchemy import Connection, func, select, text
 from sqlalchemy.orm import Session
 
 from service.calibration.evidence import key_new_evidence
@@ -109,3 +109,28 @@ def key_everyone(session: Session, camera_id: str, limit: int = 333) -> int:
         session.commit()
         total += keyed
     return total
+
+
+def insert_raw_camera_and_frame(connection: Connection, *, people: int, client_frame_id: str | None = None) -> None:
+    """Camera 'c' and one pending keypoint frame in raw SQL valid from revision 0001 on, for migration tests that
+    must write rows in an older schema than the models describe."""
+    connection.execute(
+        text(
+            "INSERT INTO cameras (id, image_width_px, image_height_px, person_height_m, equal_focal, "
+            "distance_threshold_m, created_at, updated_at) VALUES ('c', 640, 480, 1.3, true, 1.8, "
+            "'2026-01-01 00:00:00', '2026-01-01 00:00:00')"
+        )
+    )
+    frame_id = "00000000-0000-0000-0000-000000000001"
+    connection.execute(
+        text(
+            "INSERT INTO frames (id, camera_id, client_frame_id, timestamp, received_at, source, status, people) "
+            "VALUES (:id, 'c', :client, '2026-01-01 00:00:00', '2026-01-01 00:00:00', 'keypoints', 'pending', "
+            ":people)"
+        ),
+        {
+            "id": frame_id.replace("-", "") if connection.dialect.name == "sqlite" else frame_id,
+            "client": client_frame_id,
+            "people": people,
+        },
+    )
