@@ -29,7 +29,9 @@ Thunder crop in ~14-15 ms instead of ~24 ms (untrimmed graphs), but moves confid
 3.0 px mean / 7.0 px p95 at the 256-px input and flips 11 % of keypoints across the 0.3 score threshold on
 Town Centre crops (5.3 / 14 px on the atrium camera), while shifting the crop by one image pixel moves the float
 model's by 2.5 / 5.6 px and flips 7 %. Keeping the FPN in float narrows it (2.7 / 6.0 px, 9 %) at ~18 ms a crop,
-no gain left. Not equivalent to the float model, so not used.
+no gain left. Not equivalent to the float model, so not used. Re-measured for Lightning with four recipes
+(docs/benchmarks/pose.md, speed round): 3.6-3.8 ms a crop instead of 7.2-7.5, keypoints 4.1-4.4 px mean / 13-14 px
+p95 off the float model's; a one-pixel crop shift moves them 2.3 / 4.8 px.
 """
 
 from __future__ import annotations
