@@ -29,16 +29,18 @@ Thunder crop in ~14-15 ms instead of ~24 ms (untrimmed graphs), but moves confid
 3.0 px mean / 7.0 px p95 at the 256-px input and flips 11 % of keypoints across the 0.3 score threshold on
 Town Centre crops (5.3 / 14 px on the atrium camera), while shifting the crop by one image pixel moves the float
 model's by 2.5 / 5.6 px and flips 7 %. Keeping the FPN in float narrows it (2.7 / 6.0 px, 9 %) at ~18 ms a crop,
-no gain left. Not equivalent to the float model, so not used.
+no gain left. Not equivalent to the float model, so not used. Re-measured for Lightning with four recipes
+(docs/benchmarks/pose.md, speed round): 3.6-3.8 ms a crop instead of 7.2-7.5, keypoints 4.1-4.4 px mean / 13-14 px
+p95 off the float model's; a one-pixel crop shift moves them 2.3 / 4.8 px.
 """
 
 from __future__ import annotations
 
 import logging
 import os
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from functools import partial
 from pathlib import Path
 from typing import Final, Literal
 
@@ -359,7 +361,8 @@ class MoveNet:
                 outputs.append(self.head.run([OUTPUT_NAME], feed)[0])
         return np.concatenate(outputs)
 
-    def _crop_and_run(self, image_bgr: np.ndarray, window: CropWindow) -> np.ndarray:
+    def crop_and_run(self, image_bgr: np.ndarray, window: CropWindow) -> np.ndarray:
+        """(1, 17, 3) raw output for one window of the image (the unit of work of the concurrent pool)."""
         return self._run_one(self.prepare(extract_crop(image_bgr, window, self.input_px)[None])[0])
 
     def _run_concurrently(self, tensors: np.ndarray) -> np.ndarray:
@@ -383,14 +386,33 @@ class MoveNet:
 
     def __call__(self, image_bgr: np.ndarray, boxes_xyxy_px: np.ndarray) -> PoseOutput:
         """Keypoints in image pixels for each box of one image."""
-        windows = [crop_window(box) for box in boxes_xyxy_px]
-        if not windows:
-            return PoseOutput(np.zeros((0, COCO17_KEYPOINTS, 2)), np.zeros((0, COCO17_KEYPOINTS)))
-        if self.crop_mode == "concurrent" and self.workers > 1 and len(windows) > 1:
-            # Cropping and normalising in the pool too: no serial preprocessing before the first crop runs.
-            raw = np.concatenate(list(_process_pool(self.workers).map(partial(self._crop_and_run, image_bgr), windows)))
-            raw = raw.reshape(len(windows), COCO17_KEYPOINTS, 3)
-        else:
-            raw = self.infer(np.stack([extract_crop(image_bgr, w, self.input_px) for w in windows]))
-        keypoints = np.stack([w.to_image(r[:, 1::-1]) for w, r in zip(windows, raw, strict=True)])
-        return PoseOutput(keypoints_px=keypoints, scores=raw[:, :, 2].astype(np.float64))
+        return read_people(image_bgr, boxes_xyxy_px, [self] * len(boxes_xyxy_px))
+
+
+def read_people(image_bgr: np.ndarray, boxes_xyxy_px: np.ndarray, readers: Sequence[MoveNet]) -> PoseOutput:
+    """Keypoints in image pixels for each box of one image, box k read by `readers[k]` (Thunder or Lightning).
+
+    Concurrent readers share one pool for all of a frame's crops, whatever their model, the costliest model's crops
+    first (longest processing time first): reading one model's people after the other's left a core idle while the
+    last Thunder crop ran (~19 ms of wall on a frame with one near person). Crops are independent and each runs on
+    the same one-thread session either way, so the keypoints are those of one call per model, bit for bit.
+    """
+    windows = [crop_window(box) for box in boxes_xyxy_px]
+    if len(readers) != len(windows):
+        raise ValueError(f"{len(windows)} boxes but {len(readers)} readers")
+    if not windows:
+        return PoseOutput(np.zeros((0, COCO17_KEYPOINTS, 2)), np.zeros((0, COCO17_KEYPOINTS)))
+    raw = np.empty((len(windows), COCO17_KEYPOINTS, 3), dtype=np.float32)
+    workers = min(reader.workers for reader in readers)
+    if all(reader.crop_mode == "concurrent" for reader in readers) and workers > 1 and len(windows) > 1:
+        # Cropping and normalising in the pool too: no serial preprocessing before the first crop runs.
+        order = sorted(range(len(windows)), key=lambda k: -readers[k].input_px)
+        results = _process_pool(workers).map(lambda k: readers[k].crop_and_run(image_bgr, windows[k]), order)
+        for k, result in zip(order, results, strict=True):
+            raw[k] = result.reshape(COCO17_KEYPOINTS, 3)
+    else:
+        for reader in {id(r): r for r in readers}.values():
+            mine = [k for k, r in enumerate(readers) if r is reader]
+            raw[mine] = reader.infer(np.stack([extract_crop(image_bgr, windows[k], reader.input_px) for k in mine]))
+    keypoints = np.stack([w.to_image(r[:, 1::-1]) for w, r in zip(windows, raw, strict=True)])
+    return PoseOutput(keypoints_px=keypoints, scores=raw[:, :, 2].astype(np.float64))

@@ -24,9 +24,9 @@ import numpy as np
 from .assess import assess_frame
 from .detector import DEFAULT_INPUT_PX, DEFAULT_SCORE_THRESHOLD, Detections, PersonDetector, RegionTimes
 from .model_files import POSE_INPUT_PX, PoseChoice, resolve_choice
-from .movenet import CropMode, MoveNet, PoseOutput, crop_window
+from .movenet import CropMode, MoveNet, crop_window, read_people
 from .regions import UNCALIBRATED_SCALES, Region, calibrated_plan, plan_cost, uncalibrated_plan, zoom_regions
-from .types import COCO17_KEYPOINTS, DetectedPerson
+from .types import DetectedPerson
 
 if TYPE_CHECKING:
     from service.geometry import Calibration
@@ -131,7 +131,7 @@ class TopDownPose:
         start, start_cpu = time.perf_counter(), time.process_time()
         boxes = detections.boxes_xyxy_px
         models = self._models_for(boxes)
-        poses = self._read_poses(image, boxes, models)
+        poses = read_people(image, boxes, [self.movenets[model] for model in models])
         assessments = assess_frame(boxes, poses.keypoints_px, poses.scores, image.shape[0])
         self.last_times = self._stage_times(times, time.perf_counter() - start, time.process_time() - start_cpu)
         self.last_times.people = len(boxes)
@@ -174,16 +174,6 @@ class TopDownPose:
         if self.pose_model != "auto":
             return [self.pose_model] * len(boxes)
         return ["thunder" if crop_window(box).side >= THUNDER_FROM_CROP_PX else "lightning" for box in boxes]
-
-    def _read_poses(self, image: np.ndarray, boxes: np.ndarray, models: list[str]) -> PoseOutput:
-        keypoints = np.zeros((len(boxes), COCO17_KEYPOINTS, 2))
-        scores = np.zeros((len(boxes), COCO17_KEYPOINTS))
-        for name, movenet in self.movenets.items():
-            chosen = np.array([m == name for m in models], dtype=bool)
-            if chosen.any():
-                output = movenet(image, boxes[chosen])
-                keypoints[chosen], scores[chosen] = output.keypoints_px, output.scores
-        return PoseOutput(keypoints_px=keypoints, scores=scores)
 
     def _stage_times(self, times: RegionTimes, pose_s: float, pose_cpu_s: float) -> StageTimes:
         base = times.base

@@ -12,7 +12,15 @@ from service.frames.keypoints import coco_centres
 from service.pose.assess import POSTURES
 from service.pose.detector import PersonDetector
 from service.pose.model_files import DETECTOR, LIGHTNING, POSE_INPUT_PX, REGISTRY, PoseModelName
-from service.pose.movenet import INPUT_NAME, OUTPUT_NAME, SPLIT_TOLERANCE, MoveNet, crop_window, extract_crop
+from service.pose.movenet import (
+    INPUT_NAME,
+    OUTPUT_NAME,
+    SPLIT_TOLERANCE,
+    MoveNet,
+    crop_window,
+    extract_crop,
+    read_people,
+)
 from service.pose.pipeline import THUNDER_FROM_CROP_PX, TopDownPose, load_pose_estimator
 from service.pose.sessions import make_session
 from service.pose.types import DetectedPerson
@@ -248,6 +256,26 @@ def test_auto_reads_each_person_with_the_model_their_size_needs(
         side = crop_window(person.box_xyxy_px).side
         assert person.pose_model == ("thunder" if side >= THUNDER_FROM_CROP_PX else "lightning")
     assert auto.last_times.thunder_people == sum(p.pose_model == "thunder" for p in people)
+
+
+def test_one_pool_for_both_models_gives_each_models_own_keypoints(
+    auto: TopDownPose, town_frames: dict[int, np.ndarray]
+) -> None:
+    """`auto` hands Thunder's and Lightning's crops to one pool (Thunder's first): each person's keypoints are
+    exactly what their model gives when it reads its people on its own."""
+    image = town_frames[90]
+    boxes = auto.detector(image).boxes_xyxy_px[:7]
+    thunder, lightning = auto.movenets["thunder"], auto.movenets["lightning"]
+    readers = [thunder if k % 3 == 1 else lightning for k in range(len(boxes))]
+    assert len(boxes) == 7 and thunder.crop_mode == lightning.crop_mode == "concurrent"
+    mixed = read_people(image, boxes, readers)
+    for reader in (thunder, lightning):
+        mine = [k for k, r in enumerate(readers) if r is reader]
+        alone = reader(image, boxes[mine])
+        np.testing.assert_array_equal(mixed.keypoints_px[mine], alone.keypoints_px)
+        np.testing.assert_array_equal(mixed.scores[mine], alone.scores)
+    with pytest.raises(ValueError, match="7 boxes but 6 readers"):
+        read_people(image, boxes, readers[:-1])
 
 
 def test_people_say_which_keypoints_are_trusted_and_how_they_stand(auto: TopDownPose, town_frames: dict) -> None:
