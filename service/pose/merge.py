@@ -11,8 +11,9 @@ a table of seated people gets one loose box around the group besides each person
    The detector's score for a borderline person swings with scale and crop offset (0.14-0.68 for one man on Town
    Centre), so a person seen at 0.25 at two scales is more credible than one seen once at 0.3: regions pass their
    boxes down to `VOTE_FLOOR`, and the fused score meets the detector's threshold. The regions are not
-   independent (the same pixels at another scale and offset), so a box below the floor is no vote: a false
-   positive seen faintly everywhere stays out (two votes at the floor fuse to 0.36).
+   independent (the same pixels at another scale and offset), so a box below the floor is no vote: the many
+   faint boxes on walls, windows and bollards stay out (two votes at the floor fuse to 0.36, a lone box still
+   needs the threshold).
 2. Same person, partial box: a box lying mostly inside another (`CONTAINED` of its area) and sharing its top
    (within `SHARED_TOP` of the outer box's height) is that person's upper body (cut by a bicycle, a bench, the
    detector's whim). One box is kept, the outer one: it reaches the feet, which the geometry needs. A smaller box
@@ -31,8 +32,8 @@ import numpy as np
 
 NMS_IOU: Final = 0.5
 VOTE_FLOOR: Final = 0.2
-"""Lowest region score that counts as a vote (module docstring; measured on Town Centre and the atrium, 0.1-0.3 in
-docs/benchmarks/pose.md: below 0.2 the unmatched boxes grow faster than the people found)."""
+"""Lowest region score that counts as a vote (module docstring). Chosen on Town Centre and the atrium (0.1-0.3 in
+docs/benchmarks/pose.md): below 0.2 the boxes matching nobody grow much faster than the people found."""
 CONTAINED: Final = 0.8
 SHARED_TOP: Final = 0.15
 
