@@ -20,7 +20,7 @@ from typing import Final
 import cv2
 import numpy as np
 
-from .merge import merge_boxes
+from .merge import VOTE_FLOOR, merge_boxes
 from .regions import STRIDE_PX, Region, ceil_to
 from .sessions import make_session
 
@@ -111,6 +111,9 @@ class RegionTimes:
     cpu_s: list[float] = field(default_factory=list)
     """Process CPU time (all threads) per region: preprocessing, the session run and decoding."""
     merge_s: float = 0.0
+    found: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+    """Per region, the (boxes, scores) it owns above the vote floor: the votes merge.py fuses (a second look adds
+    its own to an earlier call's)."""
 
     @property
     def base(self) -> int | None:
@@ -155,11 +158,9 @@ class PersonDetector:
         `earlier`: what an earlier call on the same image found and spent, merged into this answer (a second look).
         """
         times = RegionTimes()
-        boxes, scores = [], []
         if earlier is not None:
-            boxes.append(earlier[0].boxes_xyxy_px)
-            scores.append(earlier[0].scores)
             times.regions += earlier[1].regions
+            times.found += earlier[1].found
             times.wall_s += earlier[1].wall_s
             times.cpu_s += earlier[1].cpu_s
             times.merge_s += earlier[1].merge_s
@@ -167,19 +168,21 @@ class PersonDetector:
             start, start_cpu = time.perf_counter(), time.process_time()
             dets = self.session.run(["dets"], {self._input_name: region_tensor(image_bgr, region)})[0][0]
             dets = np.asarray(dets, dtype=np.float64).reshape(-1, 5)
-            dets = dets[dets[:, 4] >= self.score_threshold]
+            dets = dets[dets[:, 4] >= min(VOTE_FLOOR, self.score_threshold)]
             found = dets[:, :4] / region.scale + (region.x0, region.y0, region.x0, region.y0)
             found[:, [0, 2]] = found[:, [0, 2]].clip(region.x0, region.x1)
             found[:, [1, 3]] = found[:, [1, 3]].clip(region.y0, region.y1)
             mine = region.owns(found) & (found[:, 2] - found[:, 0] > 1.0) & (found[:, 3] - found[:, 1] > 1.0)
-            boxes.append(found[mine])
-            scores.append(dets[mine, 4])
+            times.found.append((found[mine], dets[mine, 4]))
             times.regions.append(region)
             times.wall_s.append(time.perf_counter() - start)
             times.cpu_s.append(time.process_time() - start_cpu)
         start = time.perf_counter()
         merged_boxes, merged_scores = merge_boxes(
-            np.concatenate(boxes) if boxes else np.zeros((0, 4)), np.concatenate(scores) if scores else np.zeros(0)
+            np.concatenate([np.zeros((0, 4)), *(boxes for boxes, _ in times.found)]),
+            np.concatenate([np.zeros(0), *(scores for _, scores in times.found)]),
+            np.concatenate([np.zeros(0, dtype=int), *(np.full(len(s), k) for k, (_, s) in enumerate(times.found))]),
+            threshold=self.score_threshold,
         )
         times.merge_s += time.perf_counter() - start
         return Detections(boxes_xyxy_px=merged_boxes, scores=merged_scores), times

@@ -5,7 +5,15 @@ scales or in overlapping tiles sees the same person more than once, and the dete
 person twice in ways IoU cannot catch: a cyclist gets a whole-body box and an upper-body box inside it (IoU ~0.5),
 a table of seated people gets one loose box around the group besides each person's own. Rules, in order:
 
-1. Same person, same extent: IoU >= `NMS_IOU` with a more confident box (greedy NMS across regions).
+1. Same person, same extent: IoU >= `NMS_IOU` with a more confident box (greedy NMS across regions), whose box
+   is kept. The boxes of one person found in different regions are votes, fused into one score:
+   1 - prod(1 - best score per region), the chance that not every region is wrong if they erred independently.
+   The detector's score for a borderline person swings with scale and crop offset (0.14-0.68 for one man on Town
+   Centre), so a person seen at 0.25 at two scales is more credible than one seen once at 0.3: regions pass their
+   boxes down to `VOTE_FLOOR`, and the fused score meets the detector's threshold. The regions are not
+   independent (the same pixels at another scale and offset), so a box below the floor is no vote: the many
+   faint boxes on walls, windows and bollards stay out (two votes at the floor fuse to 0.36, a lone box still
+   needs the threshold).
 2. Same person, partial box: a box lying mostly inside another (`CONTAINED` of its area) and sharing its top
    (within `SHARED_TOP` of the outer box's height) is that person's upper body (cut by a bicycle, a bench, the
    detector's whim). One box is kept, the outer one: it reaches the feet, which the geometry needs. A smaller box
@@ -23,6 +31,9 @@ from typing import Final
 import numpy as np
 
 NMS_IOU: Final = 0.5
+VOTE_FLOOR: Final = 0.2
+"""Lowest region score that counts as a vote (module docstring). Chosen on Town Centre and the atrium (0.1-0.3 in
+docs/benchmarks/pose.md): below 0.2 the boxes matching nobody grow much faster than the people found."""
 CONTAINED: Final = 0.8
 SHARED_TOP: Final = 0.15
 
@@ -52,22 +63,36 @@ def inside_fraction(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return _intersection(a, b) / np.maximum(_area(a)[:, None], 1e-9)
 
 
-def merge_boxes(boxes_xyxy: np.ndarray, scores: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def merge_boxes(
+    boxes_xyxy: np.ndarray, scores: np.ndarray, sources: np.ndarray | None = None, *, threshold: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
     """(boxes, scores) with one box per person (rules in the module docstring), most confident first.
 
-    A partial box's score passes to the outer box it is merged into, so the person keeps the detector's best
-    confidence in them.
+    `sources`: the region each box was found in (default: all in one). A person's score is their votes' fused
+    score (rule 1), and only people whose fused score reaches `threshold` are kept; a box below the threshold may
+    still be a vote. A partial box's score passes to the outer box it is merged into, so the person keeps the
+    detector's best confidence in them.
     """
     boxes = np.asarray(boxes_xyxy, dtype=np.float64).reshape(-1, 4)
     scores = np.asarray(scores, dtype=np.float64).reshape(-1)
+    sources = np.zeros(len(scores), dtype=np.int64) if sources is None else np.asarray(sources).reshape(-1)
+    order = np.argsort(-scores, kind="stable")
+    boxes, scores, sources = boxes[order], scores[order], sources[order]
+    same = iou_matrix(boxes, boxes) >= NMS_IOU
+    kept: list[int] = []
+    votes: list[dict[int, float]] = []  # per kept box: its region -> the best score there
+    for i in range(len(boxes)):
+        leader = next((k for k, j in enumerate(kept) if same[i, j]), None)
+        if leader is None:
+            kept.append(i)
+            votes.append({})
+            leader = len(kept) - 1
+        votes[leader].setdefault(int(sources[i]), float(scores[i]))  # score order: the first is the best
+    fused = np.array([1.0 - np.prod([1.0 - v for v in vote.values()]) for vote in votes])
+    chosen = fused >= threshold
+    boxes, scores = boxes[kept][chosen], fused[chosen]
     order = np.argsort(-scores, kind="stable")
     boxes, scores = boxes[order], scores[order]
-    iou = iou_matrix(boxes, boxes)
-    kept: list[int] = []
-    for i in range(len(boxes)):
-        if all(iou[i, j] < NMS_IOU for j in kept):
-            kept.append(i)
-    boxes, scores = boxes[kept], scores[kept].copy()
 
     inside = inside_fraction(boxes, boxes)  # [i, j]: share of box i inside box j
     np.fill_diagonal(inside, 0.0)

@@ -2,8 +2,9 @@
 
 Six of the 27 mot3d atrium frames, every person on the floor marked at their head with their posture (38 standing,
 22 seated at a table, 4 uncertain). The detector at 640 px found 9 of the standing and none of the seated; the
-uncalibrated policy (640 and 1280 px passes, then a second look around the people found too small) finds, as
-measured when this test was written, 35/38 standing and 13/22 seated. The floors below sit a little under that.
+uncalibrated policy (640 and 1280 px passes, then a second look around the people found too small, the regions'
+boxes fused by vote, merge.py) finds 35/38 standing and 14/22 seated (13/22 before the votes). The floors sit one
+or two people under that: 33/38 and 13/22 pass, 32/38 or 12/22 fail.
 `posemetry bench recall` reports the same figures for every policy.
 """
 
@@ -18,7 +19,7 @@ from bench.recall import load_atrium_annotation, match_atrium
 from service.pose.pipeline import TopDownPose
 
 ANNOTATION = Path(__file__).parent / "data" / "atrium_annotations.json"
-FLOORS = {"standing": 0.85, "seated": 0.5}
+FLOORS = {"standing": 0.85, "seated": 0.55}
 
 
 def test_the_annotation_is_well_formed() -> None:

@@ -17,6 +17,21 @@ def test_the_same_person_seen_at_two_scales_is_one_box() -> None:
     assert scores.tolist() == [0.8, 0.5]
 
 
+def test_a_person_seen_faintly_in_two_regions_outweighs_one_seen_once() -> None:
+    """Votes (rule 1): two regions at 0.25 fuse to 1 - 0.75^2 = 0.44 and pass a 0.3 threshold; the same two boxes
+    from one region are one vote (0.25, dropped), and so is a lone 0.28."""
+    person = np.array([[100.0, 100.0, 160.0, 300.0], [104.0, 96.0, 162.0, 304.0]])
+    lone = np.array([[600.0, 100.0, 660.0, 300.0]])
+    boxes, scores = np.vstack([person, lone]), np.array([0.25, 0.25, 0.28])
+    merged, fused = merge_boxes(boxes, scores, np.array([0, 1, 0]), threshold=0.3)
+    np.testing.assert_allclose(merged, person[:1])
+    np.testing.assert_allclose(fused, [1 - 0.75**2])
+    merged, _ = merge_boxes(boxes, scores, np.array([0, 0, 1]), threshold=0.3)
+    assert len(merged) == 0
+    merged, fused = merge_boxes(boxes, scores, np.array([0, 1, 2]), threshold=0.2)
+    assert len(merged) == 2 and fused.tolist() == sorted(fused.tolist(), reverse=True)
+
+
 def test_an_upper_body_box_inside_a_whole_body_box_is_merged_into_it() -> None:
     """A cyclist's whole-body box and upper-body box (IoU ~0.5, so NMS alone keeps both): one person, the outer box
     (it reaches the feet), with the better score."""
