@@ -96,6 +96,42 @@ def observe(
     return static
 
 
+def static_in_recording(
+    times_s: Sequence[float], boxes: Sequence[Sequence[Box | None]], static_after_s: float
+) -> list[list[bool]]:
+    """Offline, the same rule on a whole recording (`posemetry analyze`): for each frame (times_s, in order) and
+    each of its boxes, whether it stands at a static spot.
+
+    Spots are matched, counted and forgotten as `observe` does, frame by frame. The verdict differs in one way:
+    the service decides as frames arrive, so a mannequin gives evidence until its spot has stood for
+    static_after_s; a recording is known whole, so every sighting of a spot that turns out static is marked.
+    """
+    firsts: list[Box] = []
+    first_seen: list[float] = []
+    last_seen: list[float] = []
+    sightings: list[list[tuple[int, int]]] = []
+    for frame, (at, frame_boxes) in enumerate(zip(times_s, boxes, strict=True)):
+        live = [k for k in range(len(firsts)) if at - last_seen[k] <= FORGET_AFTER_S]
+        present = [(index, box) for index, box in enumerate(frame_boxes) if box is not None]
+        matches = match_spots([box for _, box in present], [firsts[k] for k in live])
+        for (index, box), match in zip(present, matches, strict=True):
+            if match is None:
+                firsts.append(box)
+                first_seen.append(at)
+                last_seen.append(at)
+                sightings.append([(frame, index)])
+            else:
+                spot = live[match]
+                last_seen[spot] = at
+                sightings[spot].append((frame, index))
+    static = [[False] * len(frame_boxes) for frame_boxes in boxes]
+    for spot, seen in enumerate(sightings):
+        if len(seen) >= MIN_SIGHTINGS and last_seen[spot] - first_seen[spot] >= static_after_s:
+            for frame, index in seen:
+                static[frame][index] = True
+    return static
+
+
 def static_spots(session: Session, camera_id: str, static_after_s: float) -> list[StaticSpot]:
     """The camera's static spots, longest-standing first."""
     spots = session.scalars(select(StaticSpot).where(StaticSpot.camera_id == camera_id).order_by(StaticSpot.first_seen))
