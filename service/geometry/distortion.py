@@ -30,6 +30,7 @@ z_T x z_B = 0); formulations differ only in how they weight those rows. We there
    of the 99 % likelihood-ratio test's 6.6 and BIC's ln n: with thousands of
    people any small unmodelled effect (lean, keypoint bias) becomes
    "significant" at a fixed level, and BIC's penalty grows with the evidence.
+   People seen in many frames count once (see `estimate_division_k`'s individuals).
    calibrate() then also asks the lens to matter (see `material`).
 
 Monte-Carlo evaluation (20 people, 0.5 px noise, exact division-model scenes,
@@ -195,10 +196,17 @@ def estimate_division_k(
     max_abs_k_r2: float = DEFAULT_MAX_ABS_K_R2,
     radius_max_n: float | None = None,
     significance_chi2: float = DEFAULT_SIGNIFICANCE_CHI2,
+    individuals: ArrayLike | None = None,
 ) -> DivisionEstimate:
     """Division-model k from people's distorted normalised points (see the module docstring for the method).
 
     height_m only scales v in the paper's pencil and cannot change k.
+    individuals, optional, labels each observation with the person it is (service.geometry.tracks). One
+    person's residuals are not independent (their lean and the pose model's error on their body persist from
+    frame to frame), so the significance test counts individuals: the cost drop is deflated by the design
+    effect of fully correlated clusters, sum(m_i^2) / n for clusters of m_i observations, and BIC's penalty
+    is ln(individuals). Counted as observations, 240 frames of 36 walkers chose a spurious k on 2 of 6
+    distortion-free streets (f 2-3 % short).
     radius_max_n (e.g. the image corner radius) sets the admissible range
     |k| <= max_abs_k_r2 / radius_max_n^2; by default the outermost keypoint.
     """
@@ -236,15 +244,27 @@ def estimate_division_k(
     zero = int(np.flatnonzero(candidates == 0.0)[0])
     best = int(np.argmin(np.where(candidates == 0.0, np.inf, costs))) if len(candidates) > 1 else zero
     dof = n - 3
+    groups, design_effect = _clusters(individuals, n)
     if best == zero:
         k, reason = 0.0, "no admissible non-zero candidate"
     elif dof == 0:
         k, reason = float(candidates[best]), "3 people determine k exactly; no redundancy to test it"
-    elif costs[zero] - costs[best] > max(significance_chi2, np.log(n)) * costs[best] / dof:
+    elif (costs[zero] - costs[best]) / design_effect > max(significance_chi2, np.log(groups)) * costs[best] / dof:
         k, reason = float(candidates[best]), "lowest Sampson cost, significantly below k = 0"
     else:
         k, reason = 0.0, "no candidate lowers the Sampson cost significantly below k = 0"
     return DivisionEstimate(k, tuple(candidates.tolist()), tuple(costs.tolist()), (-k_max, k_max), reason)
+
+
+def _clusters(individuals: ArrayLike | None, n: int) -> tuple[int, float]:
+    """(number of individuals, design effect sum(m_i^2) / n); (n, 1) when every observation is its own."""
+    if individuals is None:
+        return n, 1.0
+    labels = np.asarray(individuals).reshape(-1)
+    if labels.shape != (n,):
+        raise CalibrationError(f"individuals must hold one label per person ({n}), got shape {labels.shape}")
+    sizes = np.unique(labels, return_counts=True)[1]
+    return len(sizes), float(np.sum(sizes.astype(np.float64) ** 2) / n)
 
 
 def corner_shift_n(k: float, radius_max_n: float) -> float:
