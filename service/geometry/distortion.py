@@ -204,9 +204,10 @@ def estimate_division_k(
     individuals, optional, labels each observation with the person it is (service.geometry.tracks). One
     person's residuals are not independent (their lean and the pose model's error on their body persist from
     frame to frame), so the significance test counts individuals: the cost drop is deflated by the design
-    effect of fully correlated clusters, sum(m_i^2) / n for clusters of m_i observations, and BIC's penalty
-    is ln(individuals). Counted as observations, 240 frames of 36 walkers chose a spurious k on 2 of 6
-    distortion-free streets (f 2-3 % short).
+    effect of the residuals' clustering (`_design_effect`: up to sum(m_i^2) / n for clusters of m_i
+    observations whose residuals are one person's constant), and BIC's penalty is ln(individuals). Counted
+    as observations, 240 frames of 36 walkers chose a spurious k on 2 of 6 distortion-free streets (f 2-3 %
+    short).
     radius_max_n (e.g. the image corner radius) sets the admissible range
     |k| <= max_abs_k_r2 / radius_max_n^2; by default the outermost keypoint.
     """
@@ -244,7 +245,7 @@ def estimate_division_k(
     zero = int(np.flatnonzero(candidates == 0.0)[0])
     best = int(np.argmin(np.where(candidates == 0.0, np.inf, costs))) if len(candidates) > 1 else zero
     dof = n - 3
-    groups, design_effect = _clusters(individuals, n)
+    groups, design_effect = _design_effect(tops, bottoms, float(candidates[zero]), individuals)
     if best == zero:
         k, reason = 0.0, "no admissible non-zero candidate"
     elif dof == 0:
@@ -256,15 +257,38 @@ def estimate_division_k(
     return DivisionEstimate(k, tuple(candidates.tolist()), tuple(costs.tolist()), (-k_max, k_max), reason)
 
 
-def _clusters(individuals: ArrayLike | None, n: int) -> tuple[int, float]:
-    """(number of individuals, design effect sum(m_i^2) / n); (n, 1) when every observation is its own."""
+def _design_effect(
+    tops_n: FloatArray, bottoms_n: FloatArray, k: float, individuals: ArrayLike | None
+) -> tuple[int, float]:
+    """(individuals, the design effect 1 + (m_w - 1) rho of the Sampson residuals at k).
+
+    m_w = sum(m_i^2) / n is the size-weighted mean number of observations per individual, rho the residuals'
+    intra-individual correlation (one-way ANOVA estimator, clipped to [0, 1]): 1 when each observation is its
+    own individual or one person's residuals vary from frame to frame as much as people's do, m_w when they
+    are one person's constant.
+    """
+    n = len(tops_n)
     if individuals is None:
         return n, 1.0
     labels = np.asarray(individuals).reshape(-1)
     if labels.shape != (n,):
         raise CalibrationError(f"individuals must hold one label per person ({n}), got shape {labels.shape}")
-    sizes = np.unique(labels, return_counts=True)[1]
-    return len(sizes), float(np.sum(sizes.astype(np.float64) ** 2) / n)
+    index, sizes = np.unique(labels, return_inverse=True, return_counts=True)[1:]
+    groups = len(sizes)
+    if groups < 2 or groups == n:
+        return groups, 1.0
+    kk = np.asarray(k, dtype=np.float64)
+    t, b = lifted(tops_n, kk), lifted(bottoms_n, kk)
+    v = sampson_cost(tops_n, bottoms_n, k)[1]
+    e, gradient2 = _sampson(tops_n, bottoms_n, t, b, v, kk)
+    residual = e / np.sqrt(np.maximum(gradient2, 1e-300))
+    means = np.bincount(index, residual) / sizes
+    within = float(np.sum((residual - means[index]) ** 2)) / (n - groups)
+    between = float(np.sum(sizes * (means - residual.mean()) ** 2)) / (groups - 1)
+    weighted = float(np.sum(sizes.astype(np.float64) ** 2) / n)
+    m0 = (n - weighted) / (groups - 1)
+    rho = (between - within) / max(between + (m0 - 1.0) * within, 1e-300)
+    return groups, 1.0 + (weighted - 1.0) * float(np.clip(rho, 0.0, 1.0))
 
 
 def corner_shift_n(k: float, radius_max_n: float) -> float:

@@ -201,3 +201,13 @@ def test_one_person_seen_in_many_frames_counts_once_in_the_lens_test(seed: int) 
     assert estimate_division_k(tops, bottoms, individuals=individuals).k == 0.0
     with pytest.raises(CalibrationError, match="one label per person"):
         estimate_division_k(tops, bottoms, individuals=individuals[:-1])
+
+
+def test_a_real_lens_is_still_found_when_individuals_vary_from_frame_to_frame() -> None:
+    # 240 observations labelled as 20 individuals whose residuals are independent (noise drawn per frame): the
+    # design effect stays near 1 and the lens is found as it is without labels.
+    _, _, tops, bottoms = division_scene(3, -0.05, noise_px=1.0, n_people=240)
+    individuals = np.repeat(np.arange(20), 12)
+    plain = estimate_division_k(tops, bottoms).k
+    labelled = estimate_division_k(tops, bottoms, individuals=individuals).k
+    assert plain == pytest.approx(-0.05, abs=0.01) and labelled == plain
