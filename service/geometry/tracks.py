@@ -60,9 +60,9 @@ SINGLE_SPEED_M_S = 2.0
 # Along the segment (image motion = depth motion x tan(alpha)), this share of a gate's metres in pixels.
 ALONG_SEGMENT_SHARE = 0.5
 MAX_SIZE_RATIO = 1.25
-# Pose-model jitter of a difference of two observations' ankle centres, as a share of the segment length
-# (the pose model's keypoints scatter by ~2.5 % of a person's size on Town Centre; this is ~2 sigma of the
-# difference).
+# Pose-model jitter of a difference of two observations' ankle centres, as a share of the segment length. On
+# Town Centre the ankle centre scatters by 0.4-0.7 % of the segment per coordinate from frame to frame (robust,
+# from second differences), with heavier tails (a foot taken for another's): 5 % is ~5 sigma of a difference.
 _JITTER_FRACTION = 0.05
 # The velocity gate. Walkers turn and stop at up to ~2 m/s^2 (a 90 deg turn at 1.4 m/s in a second); the ankle
 # centre advances in surges (each ankle stands still while the other swings), up to ~0.1 m from a steady walk.
@@ -102,20 +102,24 @@ def link_tracks(
     gates = _Gates(times, bottoms, segment, length, height_m, max_speed_m_s, max_size_ratio)
     labels = np.full(n, -1)
     members: list[list[int]] = []  # per track: its observations in time order
+    last_time = np.full(n, -np.inf)  # per track (at most n): its latest observation's time
     for t in np.unique(times[valid]):
         current = np.flatnonzero(valid & (times == t))
         assigned = np.zeros(len(current), dtype=bool)
-        live = [k for k, rows in enumerate(members) if 0.0 < t - times[rows[-1]] <= max_gap_s + _TIME_TOLERANCE_S]
-        if live:
+        since = t - last_time[: len(members)]
+        live = np.flatnonzero((since > 0.0) & (since <= max_gap_s + _TIME_TOLERANCE_S))
+        if len(live):
             cost = np.stack([gates.costs(members[k], current) for k in live])
             rows, cols = linear_sum_assignment(np.where(np.isfinite(cost), cost, 1e9))
             for r, c in zip(rows, cols, strict=True):
                 if np.isfinite(cost[r, c]):
                     labels[current[c]] = live[r]
                     members[live[r]].append(int(current[c]))
+                    last_time[live[r]] = t
                     assigned[c] = True
         for c in np.flatnonzero(~assigned):
             labels[current[c]] = len(members)
+            last_time[len(members)] = t
             members.append([int(current[c])])
     unlabelled = labels < 0
     labels[unlabelled] = len(members) + np.arange(int(unlabelled.sum()))
@@ -157,9 +161,11 @@ class _Gates:
         ok = (np.linalg.norm(move, axis=1) <= self.max_speed_m_s * gap * metre_px + jitter) & (
             ratio <= self.max_size_ratio
         )
-        window = [
-            k for k in track if self.times[k] >= self.times[last] - max(VELOCITY_WINDOW_S, gap) - _TIME_TOLERANCE_S
-        ]
+        # The track's observations of the last max(VELOCITY_WINDOW_S, gap) seconds, scanned from its end.
+        start, since = len(track) - 1, self.times[last] - max(VELOCITY_WINDOW_S, gap) - _TIME_TOLERANCE_S
+        while start > 0 and self.times[track[start - 1]] >= since:
+            start -= 1
+        window = track[start:]
         span = self.times[last] - self.times[window[0]]
         if len(window) >= 2 and gap <= MAX_EXTRAPOLATION * span + _TIME_TOLERANCE_S:
             residual, fit_jitter, allowed_m = self._from_velocity(window, current)
@@ -170,7 +176,7 @@ class _Gates:
             return np.full(len(current), np.inf)
         return np.where(ok & (cost <= 1.0), cost, np.inf)
 
-    def _from_velocity(self, window: list[int], current: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _from_velocity(self, window: list[int], current: np.ndarray) -> tuple[np.ndarray, float, float]:
         """The constant-velocity prediction's miss (a least-squares line through the window's ankle centres),
         the keypoint jitter through the fit relative to that of a difference of two observations, and the
         metres a walker may stray from the line: the gait's surge and a bounded acceleration."""
@@ -182,14 +188,12 @@ class _Gates:
         velocity = ((t - centre)[:, None] * (points - mean)).sum(axis=0) / spread
         tau = float(self.times[current[0]] - centre)
         residual = self.bottoms[current] - (mean + tau * velocity)
-        fit_jitter = np.sqrt((1.0 + 1.0 / len(window) + tau**2 / spread) / 2.0)
-        return (
-            residual,
-            np.full(len(current), fit_jitter),
-            np.full(len(current), GAIT_M + 0.5 * MAX_ACCEL_M_S2 * tau**2),
-        )
+        fit_jitter = float(np.sqrt((1.0 + 1.0 / len(window) + tau**2 / spread) / 2.0))
+        return residual, fit_jitter, GAIT_M + 0.5 * MAX_ACCEL_M_S2 * tau**2
 
-    def _ellipse(self, last: int, move_px: np.ndarray, reach_px: np.ndarray, jitter_px: np.ndarray) -> np.ndarray:
+    def _ellipse(
+        self, last: int, move_px: np.ndarray, reach_px: float | np.ndarray, jitter_px: float | np.ndarray
+    ) -> np.ndarray:
         """|move| against reach + jitter across the segment, ALONG_SEGMENT_SHARE x reach + jitter along it: ground
         metres seen along the segment are depth metres, foreshortened by tan(alpha)."""
         along_unit = self.segment[last] / self.length[last]
