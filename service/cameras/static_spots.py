@@ -35,10 +35,10 @@ FORGET_AFTER_S: Final = 60.0
 Box = tuple[float, float, float, float]
 
 
-def match_spots(boxes: Sequence[Box], spots: Sequence[Box]) -> list[int | None]:
+def match_spots(boxes: Sequence[Box], spots: Sequence[Box] | np.ndarray) -> list[int | None]:
     """For each box, the spot it is another sighting of (an index into `spots`), or None: greedy by overlap."""
     matched: list[int | None] = [None] * len(boxes)
-    if not boxes or not spots:
+    if len(boxes) == 0 or len(spots) == 0:
         return matched
     overlap = iou_matrix(np.asarray(boxes, dtype=float), np.asarray(spots, dtype=float))
     taken: set[int] = set()
@@ -106,24 +106,28 @@ def static_in_recording(
     the service decides as frames arrive, so a mannequin gives evidence until its spot has stood for
     static_after_s; a recording is known whole, so every sighting of a spot that turns out static is marked.
     """
-    firsts: list[Box] = []
-    first_seen: list[float] = []
-    last_seen: list[float] = []
+    firsts = np.zeros((16, 4))  # per spot (grown by doubling): its first box, first and last sighting
+    first_seen, last_seen = np.zeros(16), np.zeros(16)
     sightings: list[list[tuple[int, int]]] = []
+    live = np.zeros(0, dtype=int)  # spots seen within FORGET_AFTER_S, pruned frame by frame
     for frame, (at, frame_boxes) in enumerate(zip(times_s, boxes, strict=True)):
-        live = [k for k in range(len(firsts)) if at - last_seen[k] <= FORGET_AFTER_S]
+        live = live[last_seen[live] >= at - FORGET_AFTER_S]
         present = [(index, box) for index, box in enumerate(frame_boxes) if box is not None]
-        matches = match_spots([box for _, box in present], [firsts[k] for k in live])
+        matches = match_spots([box for _, box in present], firsts[live])
         for (index, box), match in zip(present, matches, strict=True):
             if match is None:
-                firsts.append(box)
-                first_seen.append(at)
-                last_seen.append(at)
-                sightings.append([(frame, index)])
+                spot = len(sightings)
+                if spot == len(firsts):
+                    firsts, first_seen, last_seen = (
+                        np.concatenate((a, np.zeros_like(a))) for a in (firsts, first_seen, last_seen)
+                    )
+                firsts[spot], first_seen[spot] = box, at
+                sightings.append([])
+                live = np.append(live, spot)
             else:
-                spot = live[match]
-                last_seen[spot] = at
-                sightings[spot].append((frame, index))
+                spot = int(live[match])
+            last_seen[spot] = at
+            sightings[spot].append((frame, index))
     static = [[False] * len(frame_boxes) for frame_boxes in boxes]
     for spot, seen in enumerate(sightings):
         if len(seen) >= MIN_SIGHTINGS and last_seen[spot] - first_seen[spot] >= static_after_s:
