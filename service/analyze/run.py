@@ -79,7 +79,7 @@ def mark_static(frames: Sequence[AnalyzedFrame], static_after_s: float) -> list[
     """The frames with people at static spots (service.cameras.static_spots: a mannequin, a poster) marked
     unusable, as the service marks them: no evidence, no violation. Needs frame times; without them (a folder
     of images) the frames are returned as they are."""
-    from service.cameras.static_spots import static_in_recording
+    from service.cameras.static_rule import static_in_recording
 
     if any(frame.time_s is None for frame in frames):
         return list(frames)

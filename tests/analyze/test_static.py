@@ -6,7 +6,7 @@ import numpy as np
 
 from service.analyze.analysis import AnalyzedFrame, Evidence
 from service.analyze.run import mark_static
-from service.cameras.static_spots import FORGET_AFTER_S, static_in_recording
+from service.cameras.static_rule import FORGET_AFTER_S, static_in_recording
 from service.domain import PersonIn
 from service.frames.keypoints import STATIC_REASON
 
