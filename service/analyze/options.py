@@ -107,6 +107,9 @@ class AnalyzeOptions:
     """Side the person detector sees the frame at; None: the service's POSEMETRY_DETECTOR_INPUT_PX (640)."""
     min_people: int = DEFAULT_MIN_PEOPLE
     """Fewest usable people a calibration is solved from (the service's POSEMETRY_CALIBRATION_MIN_PEOPLE default)."""
+    static_after_s: float | None = None
+    """Seconds a detection may stand still before its spot is static (service.cameras.static_spots); None: the
+    service's POSEMETRY_STATIC_AFTER_S."""
     guided: bool = True
     """Run pose again with the first calibration guiding the detector, and solve again (service/analyze/run.py)."""
 
@@ -144,6 +147,8 @@ class AnalyzeOptions:
             raise AnalyzeError(f"the detector input size must be a multiple of 32 from 32 to 2048 px, got {px}")
         if self.min_people < 3:
             raise AnalyzeError(f"at least 3 people are needed to calibrate, got --min-people {self.min_people}")
+        if self.static_after_s is not None and not (math.isfinite(self.static_after_s) and self.static_after_s > 0):
+            raise AnalyzeError(f"--static-after must be a positive number of seconds, got {self.static_after_s:g}")
         if self.sample_cap < 10:
             raise AnalyzeError(f"the calibration sample cap must be at least 10, got {self.sample_cap}")
         threshold = parse_threshold(self.threshold) if isinstance(self.threshold, str) else self.threshold

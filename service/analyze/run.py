@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from service.domain import PersonIn
-from service.frames.keypoints import people_from_detections
+from service.frames.keypoints import STATIC_REASON, people_from_detections
 from service.frames.measure import measure_people
 from service.geometry import Calibration, SolveOptions
 from service.geometry.evidence import EvidenceSolve, solve_evidence
@@ -73,6 +73,31 @@ def detect(
         frames.append(AnalyzedFrame(item.index, item.time_s, item.file, people))
         observer.advance(people=len(people))
     return frames, skipped
+
+
+def mark_static(frames: Sequence[AnalyzedFrame], static_after_s: float) -> list[AnalyzedFrame]:
+    """The frames with people at static spots (service.cameras.static_spots: a mannequin, a poster) marked
+    unusable, as the service marks them: no evidence, no violation. Needs frame times; without them (a folder
+    of images) the frames are returned as they are."""
+    from service.cameras.static_rule import static_in_recording
+
+    if any(frame.time_s is None for frame in frames):
+        return list(frames)
+    static = static_in_recording(
+        [float(frame.time_s or 0.0) for frame in frames],
+        [[person.box_px for person in frame.people] for frame in frames],
+        static_after_s,
+    )
+    return [
+        replace(
+            frame,
+            people=[
+                replace(person, unusable_reason=STATIC_REASON) if still else person
+                for person, still in zip(frame.people, marks, strict=True)
+            ],
+        )
+        for frame, marks in zip(frames, static, strict=True)
+    ]
 
 
 def _guided(
@@ -205,7 +230,9 @@ def run_analysis(path: Path, out_dir: Path, options: AnalyzeOptions, observer: O
     estimator = load_estimator(options)
 
     started = time.perf_counter()
+    static_after_s = _static_after_s(options)
     frames, skipped = detect(source, estimator, observer)
+    frames = mark_static(frames, static_after_s)
     times = {"pose": time.perf_counter() - started}
     if not frames:
         raise AnalyzeError(f"no frame of {path} could be analysed ({len(skipped)} skipped, see the notes above)")
@@ -222,6 +249,7 @@ def run_analysis(path: Path, out_dir: Path, options: AnalyzeOptions, observer: O
         box = feet_box(frames, source.image_size_px)
         first_people = sum(len(f.people) for f in frames)
         frames, skipped = detect(source, estimator, observer, solve.calibration, box)
+        frames = mark_static(frames, static_after_s)
         times["guided"] = time.perf_counter() - started
         observer.begin("calibration", 1)
         started = time.perf_counter()
@@ -261,6 +289,12 @@ def _calibration_failure(analysis: Analysis, out_dir: Path) -> str:
     else:
         detail = f"{analysis.solve.error} ({usable} usable people from {frames} frames)"
     return f"calibration failed: {detail}; the people found are in {out_dir / 'frames.jsonl'}"
+
+
+def _static_after_s(options: AnalyzeOptions) -> float:
+    from service.settings import get_settings
+
+    return get_settings().static_after_s if options.static_after_s is None else options.static_after_s
 
 
 def load_estimator(options: AnalyzeOptions) -> PoseEstimator:

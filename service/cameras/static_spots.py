@@ -17,39 +17,24 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from datetime import datetime, timedelta
-from typing import Final
 
-import numpy as np
 from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
 
-from service.pose.merge import iou_matrix
 from service.store.models import StaticSpot
 
-SAME_PLACE_IOU: Final = 0.8
-"""A still object's boxes in two frames overlap by 0.9 and more (detector jitter of a few pixels); a walking
-person's boxes a fifth of a second apart by less than 0.7."""
-MIN_SIGHTINGS: Final = 3
-FORGET_AFTER_S: Final = 60.0
+from .static_rule import FORGET_AFTER_S, MIN_SIGHTINGS, SAME_PLACE_IOU, Box, match_spots
 
-Box = tuple[float, float, float, float]
-
-
-def match_spots(boxes: Sequence[Box], spots: Sequence[Box]) -> list[int | None]:
-    """For each box, the spot it is another sighting of (an index into `spots`), or None: greedy by overlap."""
-    matched: list[int | None] = [None] * len(boxes)
-    if not boxes or not spots:
-        return matched
-    overlap = iou_matrix(np.asarray(boxes, dtype=float), np.asarray(spots, dtype=float))
-    taken: set[int] = set()
-    for flat in np.argsort(-overlap, axis=None):
-        box, spot = divmod(int(flat), len(spots))
-        if overlap[box, spot] < SAME_PLACE_IOU:
-            break
-        if matched[box] is None and spot not in taken:
-            matched[box] = spot
-            taken.add(spot)
-    return matched
+__all__ = [
+    "FORGET_AFTER_S",
+    "MIN_SIGHTINGS",
+    "SAME_PLACE_IOU",
+    "Box",
+    "is_static",
+    "match_spots",
+    "observe",
+    "static_spots",
+]
 
 
 def is_static(spot: StaticSpot, static_after_s: float) -> bool:

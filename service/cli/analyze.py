@@ -47,6 +47,11 @@ def analyze(
     min_people: int = typer.Option(
         30, help="Fewest usable people to calibrate from (fewer give a camera that looks solved and is not)."
     ),
+    static_after: float | None = typer.Option(
+        None,
+        help="Seconds a detected person may stay exactly where they are before the spot is taken for a mannequin, "
+        "poster or statue: no evidence, no violations there (default: POSEMETRY_STATIC_AFTER_S, as the service).",
+    ),
     guided: bool = typer.Option(
         True,
         "--guided/--no-guided",
@@ -86,5 +91,6 @@ def analyze(
         detector_input_px=detector_px,
         guided=guided,
         min_people=min_people,
+        static_after_s=static_after,
     )
     raise typer.Exit(run_command(path, out, options))

@@ -251,7 +251,7 @@ def _solve(
     stage = _consensus(frame, tops_px, bottoms_px, usable, problem, options, focal_n)
     noise_floor_n = MIN_NOISE_FRACTION * frame.diagonal_px / frame.scale_px
     if options.distortion and problem.lens is None and stage.inliers.sum() >= _MIN_LENS_PEOPLE:
-        stage = _with_lens(stage, tops_px, bottoms_px, problem, options, focal_n, noise_floor_n)
+        stage = _with_lens(stage, tops_px, bottoms_px, track, problem, options, focal_n, noise_floor_n)
     if stage.inliers.sum() < minimum:
         raise CalibrationError("too few people agree on one camera")
     optimise = options.refine is None or options.refine
@@ -267,6 +267,7 @@ def _with_lens(
     stage: _Stage,
     tops_px: FloatArray,
     bottoms_px: FloatArray,
+    track: np.ndarray,
     problem: CalibrationProblem,
     options: SolveOptions,
     focal_n: tuple[float, float] | None,
@@ -279,7 +280,7 @@ def _with_lens(
     # on large crowds without losing a lens that bends their segments visibly.
     inl = inl[:: max(1, len(inl) // _LENS_TEST_PEOPLE)]
     try:
-        k = estimate_division_k(stage.tops_n[inl], stage.bottoms_n[inl], problem.height_m).k
+        k = estimate_division_k(stage.tops_n[inl], stage.bottoms_n[inl], problem.height_m, individuals=track[inl]).k
     except CalibrationError:
         return stage
     if k == 0.0:
