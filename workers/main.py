@@ -35,7 +35,7 @@ from rq import Queue
 from rq.job import Job
 from sqlalchemy.exc import SQLAlchemyError
 
-from service.calibration.service import calibration_due
+from service.calibration.service import solve_due
 from service.cameras.repository import list_cameras
 from service.dispatch import DispatchUnavailableError
 from service.frames.repository import cameras_with_pending_frames, frames_detecting
@@ -124,15 +124,7 @@ def requeue_pending(settings: Settings, dispatcher: RedisDispatcher, *, periodic
     while True:
         with factory() as session:
             cameras = list_cameras(session, limit=_PAGE, after=after)
-            due = [
-                camera.id
-                for camera in cameras
-                if calibration_due(
-                    camera,
-                    min_people=settings.calibration_min_people,
-                    growth_factor=settings.calibration_growth_factor,
-                )
-            ]
+            due = [camera.id for camera in cameras if solve_due(session, camera, settings)]
         # A forced solve that has not completed (its job failed, or was lost) is asked for again: the gate still
         # holds the forced flag, so the new job is forced too.
         due += [
