@@ -76,12 +76,6 @@ def evidence_for_next_solve(
     return max(min_people, math.ceil(factor * last))
 
 
-def calibration_due(camera: Camera, *, min_people: int, growth_factor: float, **schedule: Any) -> bool:
-    """Whether evidence warrants a solve (see evidence_for_next_solve, which takes `schedule`)."""
-    target = evidence_for_next_solve(camera, min_people=min_people, growth_factor=growth_factor, **schedule)
-    return camera.usable_evidence_count >= target
-
-
 # A solve has converged when it moved none of focal length, ground normal and camera height by more than this many
 # of its own sigmas from the solve before it, and is graded good.
 CONVERGED_SIGMAS = 1.0

@@ -19,7 +19,6 @@ from service.calibration.repository import (
     reset_calibration,
 )
 from service.calibration.service import (
-    calibration_due,
     evidence_for_next_solve,
     has_converged,
     next_solve_at,
@@ -38,7 +37,7 @@ pytestmark = pytest.mark.both_backends
 def test_calibration_is_due_first_at_the_minimum_then_on_growth() -> None:
     def due(evidence: int, last: int) -> bool:
         camera = Camera(usable_evidence_count=evidence, evidence_at_last_solve=last)
-        return calibration_due(camera, min_people=30, growth_factor=1.5)
+        return evidence >= evidence_for_next_solve(camera, min_people=30, growth_factor=1.5)
 
     assert not due(29, 0)
     assert due(30, 0)
