@@ -46,6 +46,7 @@ import psutil
 
 from .frames import WalkingCamera, walking_cameras
 from .http_client import Connection, Response, serve
+from .load_calibration import CalibrationWatch, solve_times
 from .load_options import (
     BACKLOG_EVERY_S,
     EXPECTED_STATUS,
@@ -104,6 +105,7 @@ class LoadRun:
         self._webhook_secret = ""
         self.frames_posted = [0] * options.keypoint_cameras
         self.loop_lag_s: list[float] = []
+        self.calibrations = CalibrationWatch()
         # The measured window, in loop time: empty and open-ended until the warm-up is over.
         self.t0 = math.inf
         self.t1 = math.inf
@@ -225,7 +227,10 @@ class LoadRun:
 
         async def poll(scheduled: float, n: int) -> None:
             camera_id = cameras[(n * self.options.dashboards + index) % len(cameras)]
-            await self._send(GET_CALIBRATION, connection, scheduled, "GET", f"/v1/cameras/{camera_id}/calibration")
+            path = f"/v1/cameras/{camera_id}/calibration"
+            response = await self._send(GET_CALIBRATION, connection, scheduled, "GET", path)
+            if response is not None and response.status == 200:
+                self.calibrations.record(camera_id, time.time(), response.body)
 
         await self._every(GET_CALIBRATION, interval, self.rng.uniform(0, interval), poll)
         connection.close()
@@ -398,6 +403,16 @@ class LoadRun:
         connection.close()
         return calibrated
 
+    async def solve_history(self) -> dict[str, list[float]]:
+        """Every camera's solve times (bench.load_calibration), read after the drain."""
+        connection = self._connection()
+        solved_at = {}
+        for camera_id in [*self.keypoint_ids, *self.image_ids]:
+            response = await connection.request("GET", f"/v1/cameras/{camera_id}/calibration/history?limit=1000")
+            solved_at[camera_id] = solve_times(response.body) if response.status == 200 else []
+        connection.close()
+        return solved_at
+
     async def _seed_camera(self, camera_id: str, bodies: list[tuple[str, bytes, bytes]]) -> None:
         connection = self._connection()
         for path, body, content_type in bodies:
@@ -520,6 +535,8 @@ class LoadRun:
             await asyncio.sleep(0.25)
         stop_following.set()
         stop_sampling.set()
+        solved_at = await self.solve_history()
+        freshness = self.calibrations.freshness(solved_at, (self.wall_t0, self.wall_t0 + options.seconds), time.time())
         await asyncio.gather(*samplers)
         if receiver is not None:
             receiver.close()
@@ -553,6 +570,7 @@ class LoadRun:
             profiler_cpu_s=profiler.cpu_s if profiler is not None else 0.0,
             client_loop_lag_s=self.loop_lag_s,
             worker_restarts=len({p.pid for p in roles_after.get(WORKERS, [])} - worker_pids),
+            freshness=freshness,
         )
 
 

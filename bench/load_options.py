@@ -9,6 +9,7 @@ from pathlib import Path
 from urllib.parse import urlsplit
 
 from .http_client import HttpError
+from .load_calibration import Freshness
 from .load_stats import BacklogSample, Followed, KindStats
 from .profile import ProfileSummary
 from .server import Server, free_port
@@ -107,6 +108,7 @@ class LoadResult:
     profiler_cpu_s: float = 0.0
     client_loop_lag_s: list[float] = field(default_factory=list)  # the client's event loop: how late it woke
     worker_restarts: int = 0
+    freshness: Freshness | None = None
     notes: list[str] = field(default_factory=list)
 
 

@@ -110,6 +110,16 @@ def lag_table(result: LoadResult) -> ReportTable:
         "caught up after the window",
         f"{caught_up:.1f} s" if caught_up is not None else f"NOT within {result.options.drain_s:g} s",
     )
+    fresh = result.freshness
+    if fresh is not None:
+        waited = fresh.unsolved_waited_s
+        table.add_row(
+            "calibration, due to solved (p50 / p99 / max)",
+            f"{_s(fresh.solved_s, 50)} / {_s(fresh.solved_s, 99)} / {fmt(max(fresh.solved_s, default=math.nan), 2)} s"
+            f"  ({len(fresh.solved_s)} due during the window were solved, {len(waited)} never"
+            + (f", waiting {min(waited):.0f}-{max(waited):.0f} s at the end" if waited else "")
+            + f"; {fresh.solves_in_window} solves stored in the window)",
+        )
     for queue in sorted({q for _t, depths in result.queue_depths for q in depths}):
         depths = [d.get(queue, 0.0) for _t, d in result.queue_depths]
         table.add_row(f"queue {queue}: jobs waiting (max / at end)", f"{max(depths):.0f} / {depths[-1]:.0f}")

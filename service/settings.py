@@ -127,6 +127,16 @@ class Settings(BaseSettings):
         description="A camera is re-calibrated each time its usable evidence has grown by this factor since the "
         "last solve (1.5: at 30, 45, 68, ... people), so solves get rarer as they stop changing the answer.",
     )
+    calibration_refresh_factor: float = Field(
+        default=4.0,
+        gt=1.0,
+        le=1000.0,
+        description="Once more people no longer sharpen a camera's calibration (its last solve used a full sample "
+        "of calibration_sample_cap people, or it has converged: graded good, and the last solve moved focal length, "
+        "ground normal and camera height by less than their sigma), it is re-solved each time its usable evidence "
+        "has grown by this factor instead of calibration_growth_factor (4: three quarters of the new sample are "
+        "people the last solve never saw). A camera that moves is caught by the movement test, not by re-solving.",
+    )
     calibration_sample_cap: int = Field(
         default=2000,
         ge=10,

@@ -21,7 +21,7 @@ from rq import get_current_job
 from sqlalchemy.exc import SQLAlchemyError
 
 from service.calibration.service import solve_camera
-from service.domain import SKIPPED
+from service.domain import DONE, SKIPPED
 from service.frames import detection
 from service.frames.service import measure_pending
 from service.observability.logs import log_context
@@ -84,7 +84,9 @@ def _recovers_from_outages(job_function: Callable[_P, _R]) -> Callable[_P, _R]:
     return run
 
 
-def _gated(kind: str, camera_id: str, work: Callable[[RedisDispatcher, bool], str]) -> str:
+def _gated(
+    kind: str, camera_id: str, work: Callable[[RedisDispatcher, bool], str], *, job_id: str | None = None
+) -> str:
     """Run `work(dispatcher, forced)` in the camera's slot for `kind`, then queue the re-run it owes.
 
     The gate guarantees one job of a kind per camera at a time; requests that arrived while this one ran become
@@ -93,8 +95,9 @@ def _gated(kind: str, camera_id: str, work: Callable[[RedisDispatcher, bool], st
     seconds and RQ's retry of this job takes it again.
     """
     dispatcher = current_dispatcher(get_settings())
-    job = get_current_job()
-    job_id = job.id if job is not None else new_job_id(kind, camera_id)
+    if job_id is None:
+        job = get_current_job()
+        job_id = job.id if job is not None else new_job_id(kind, camera_id)
     gate = dispatcher.gates[kind]
     ticket = gate.start(camera_id, job_id)
     if not ticket.run:
@@ -113,16 +116,34 @@ def _gated(kind: str, camera_id: str, work: Callable[[RedisDispatcher, bool], st
 
 @_recovers_from_outages
 def detect_people(frame_id: str) -> str:
-    """Find the people in an image frame and store them (service.frames.detection)."""
+    """Find the people in an image frame and store them (service.frames.detection), then measure the camera's
+    pending frames in this job, in the camera's measuring slot.
+
+    A frames job would wait its turn behind every keypoint camera's (a FIFO of 50 cameras under `posemetry bench
+    load`: image frames were answered 20 s after their pose). Measuring an image camera's frame or two costs
+    milliseconds, so the pose capacity answers its own frames. If a frames job of the camera is running, the gate
+    makes that one run again instead; if this job dies before measuring, its retry (or the recovery pass) finds
+    the frame pending and asks for a frames job."""
     settings = get_settings()
-    return detection.detect_people(settings, current_dispatcher(settings), uuid.UUID(frame_id))
+    frame_uuid = uuid.UUID(frame_id)
+    outcome = detection.detect_people(settings, current_dispatcher(settings), frame_uuid, measure=False)
+    if outcome == DONE:
+        camera_id = detection.camera_of(settings, frame_uuid)
+        if camera_id is not None:
+            _measure(settings, camera_id, job_id=new_job_id(FRAMES_QUEUE, camera_id))
+    return outcome
+
+
+def _measure(settings: Settings, camera_id: str, *, job_id: str | None = None) -> str:
+    return _gated(
+        FRAMES_QUEUE, camera_id, lambda dispatcher, _: measure_pending(settings, dispatcher, camera_id), job_id=job_id
+    )
 
 
 @_recovers_from_outages
 def measure_frames(camera_id: str) -> str:
     """Answer the camera's pending frames with its current calibration (service.frames.service)."""
-    settings = get_settings()
-    return _gated(FRAMES_QUEUE, camera_id, lambda dispatcher, _: measure_pending(settings, dispatcher, camera_id))
+    return _measure(get_settings(), camera_id)
 
 
 @_recovers_from_outages

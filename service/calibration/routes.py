@@ -55,7 +55,7 @@ def calibration_status(session: Session, camera: Camera, settings: Settings) -> 
     current = repository.current_calibration(session, camera.id)
     latest = repository.calibration_history(session, camera.id, limit=1)
     last_failure = latest[0].reason if latest and latest[0].status == "failed" else None
-    needed = people_needed(camera, settings)
+    needed = people_needed(session, camera, settings)
     if current is not None:
         state = "calibrated"
     elif needed == 0:

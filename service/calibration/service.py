@@ -14,9 +14,11 @@ import logging
 import math
 import time
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from sqlalchemy import select
+from sqlalchemy.orm import Session
 
 from service.calibration import evidence
 from service.calibration.camera_model import model_record, problem_for, quality_record
@@ -47,25 +49,111 @@ KEY_CHUNK_BOUNDS = (100, 20_000)
 KEY_TRANSACTION_S = 0.02
 
 
-def evidence_for_next_solve(camera: Camera, *, min_people: int, growth_factor: float) -> int:
-    """Usable evidence at which the next solve is due: min_people first, then growth_factor x the last solve's."""
-    if camera.evidence_at_last_solve <= 0:
+def evidence_for_next_solve(
+    camera: Camera,
+    *,
+    min_people: int,
+    growth_factor: float,
+    refresh_factor: float | None = None,
+    sample_cap: int | None = None,
+    converged: bool = False,
+) -> int:
+    """Usable evidence at which the next solve is due: min_people first, then growth_factor x the last solve's
+    while more people still sharpen the answer, and refresh_factor x once they no longer do.
+
+    A solve's sigma shrinks as 1/sqrt of the people it rests on, so each growth by growth_factor buys a
+    sqrt(growth_factor) sharper answer, until either (a) the last solve already used a full sample (`sample_cap`:
+    more stored evidence no longer enlarges the sample, so a re-solve draws an equally precise answer), or (b) the
+    camera has converged (`converged`, see `has_converged`: the last solve did not move the answer beyond its
+    sigma). From then on a re-solve only refreshes the sample: at refresh_factor x (4: three quarters of a new
+    sample are people the last solve never saw), while the movement test watches every frame for a change of
+    the camera (service.calibration.moves)."""
+    last = camera.evidence_at_last_solve
+    if last <= 0:
         return min_people
-    return max(min_people, math.ceil(growth_factor * camera.evidence_at_last_solve))
+    settled = converged or (sample_cap is not None and last >= sample_cap)
+    factor = refresh_factor if settled and refresh_factor is not None else growth_factor
+    return max(min_people, math.ceil(factor * last))
 
 
-def calibration_due(camera: Camera, *, min_people: int, growth_factor: float) -> bool:
-    """Whether evidence warrants a solve: a first one at min_people, then each time it grows by growth_factor."""
-    target = evidence_for_next_solve(camera, min_people=min_people, growth_factor=growth_factor)
-    return camera.usable_evidence_count >= target
+# A solve has converged when it moved none of focal length, ground normal and camera height by more than this many
+# of its own sigmas from the solve before it, and is graded good.
+CONVERGED_SIGMAS = 1.0
 
 
-def people_needed(camera: Camera, settings: Settings) -> int:
-    """Usable people still missing before the next solve is due."""
-    target = evidence_for_next_solve(
-        camera, min_people=settings.calibration_min_people, growth_factor=settings.calibration_growth_factor
+def has_converged(session: Session, camera: Camera) -> bool:
+    """Whether the camera's last two successful solves of its epoch agree within the newer one's sigma, the newer
+    graded good: the evidence added between them did not move the answer beyond its sigma, so the same growth
+    again (which moves it less: by sigma x sqrt(1 - 1/growth_factor) on honest sigmas) will not either. A solve
+    that moves re-arms the fast schedule."""
+    stmt = (
+        select(CalibrationVersion)
+        .where(
+            CalibrationVersion.camera_id == camera.id,
+            CalibrationVersion.epoch == camera.epoch,
+            CalibrationVersion.status == "ok",
+        )
+        .order_by(CalibrationVersion.version.desc())
+        .limit(2)
     )
-    return max(0, target - camera.usable_evidence_count)
+    versions = list(session.scalars(stmt))
+    if len(versions) < 2 or versions[0].quality_grade != "good":
+        return False
+    return solves_agree(versions[0], versions[1])
+
+
+def solves_agree(newer: CalibrationVersion, older: CalibrationVersion, sigmas: float = CONVERGED_SIGMAS) -> bool:
+    """Whether `older` lies within `sigmas` of `newer`'s own sigma in focal length, normal direction and height."""
+    values = (newer.fx_px, newer.fx_std_px, older.fx_px, newer.normal_std_deg, newer.rho_m, newer.rho_std_m)
+    if any(v is None or not math.isfinite(v) for v in (*values, older.rho_m)):
+        return False
+    normals = np.array(
+        [[newer.normal_x, newer.normal_y, newer.normal_z], [older.normal_x, older.normal_y, older.normal_z]], float
+    )
+    if not np.all(np.isfinite(normals)):
+        return False
+    cosine = float(normals[0] @ normals[1] / (np.linalg.norm(normals[0]) * np.linalg.norm(normals[1])))
+    angle_deg = math.degrees(math.acos(min(1.0, max(-1.0, cosine))))
+    return (
+        abs(newer.fx_px - older.fx_px) <= sigmas * newer.fx_std_px  # type: ignore[operator]
+        and angle_deg <= sigmas * newer.normal_std_deg  # type: ignore[operator]
+        and abs(newer.rho_m - older.rho_m) <= sigmas * newer.rho_std_m  # type: ignore[operator]
+    )
+
+
+def _schedule(settings: Settings) -> dict[str, Any]:
+    return {
+        "min_people": settings.calibration_min_people,
+        "growth_factor": settings.calibration_growth_factor,
+        "refresh_factor": settings.calibration_refresh_factor,
+        "sample_cap": settings.calibration_sample_cap,
+    }
+
+
+def next_solve_at(session: Session, camera: Camera, settings: Settings) -> int:
+    """The usable evidence at which the camera's next solve is due, on the settings' schedule (reads the last two
+    solves when convergence decides it)."""
+    last = camera.evidence_at_last_solve
+    if last <= 0 or last >= settings.calibration_sample_cap:
+        return evidence_for_next_solve(camera, **_schedule(settings))
+    return evidence_for_next_solve(camera, **_schedule(settings), converged=has_converged(session, camera))
+
+
+def may_be_due(camera: Camera, settings: Settings) -> bool:
+    """False when no schedule could make the camera due yet (no read needed): what a measuring job asks first."""
+    last = camera.evidence_at_last_solve
+    factor = min(settings.calibration_growth_factor, settings.calibration_refresh_factor)
+    return last <= 0 or camera.usable_evidence_count >= max(settings.calibration_min_people, factor * last)
+
+
+def solve_due(session: Session, camera: Camera, settings: Settings) -> bool:
+    """Whether the camera is due a solve now (next_solve_at reached)."""
+    return camera.usable_evidence_count >= next_solve_at(session, camera, settings)
+
+
+def people_needed(session: Session, camera: Camera, settings: Settings) -> int:
+    """Usable people still missing before the next solve is due."""
+    return max(0, next_solve_at(session, camera, settings) - camera.usable_evidence_count)
 
 
 def _relative_focal_std(fx_px: float | None, fx_std_px: float | None) -> float:
@@ -139,9 +227,7 @@ def solve_camera(settings: Settings, dispatcher: RedisDispatcher, camera_id: str
         camera = session.get(Camera, camera_id)
         if camera is None:
             return GONE
-        if not forced and not calibration_due(
-            camera, min_people=settings.calibration_min_people, growth_factor=settings.calibration_growth_factor
-        ):
+        if not forced and not solve_due(session, camera, settings):
             # Frames that arrived during the previous solve saw "due" and asked again; if that solve already
             # covered the growth, another one now would change nothing. Forced solves always run.
             return SKIPPED

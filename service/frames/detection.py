@@ -43,10 +43,12 @@ if TYPE_CHECKING:
 log = logging.getLogger(JOBS_LOGGER)
 
 
-def detect_people(settings: Settings, dispatcher: RedisDispatcher, frame_uuid: uuid.UUID) -> str:
+def detect_people(
+    settings: Settings, dispatcher: RedisDispatcher, frame_uuid: uuid.UUID, *, measure: bool = True
+) -> str:
     """Run pose inference on an image frame, store its people (the image goes unless the camera keeps images),
-    then have the camera's pending frames measured. Its log lines carry the request id of the request that
-    posted the image."""
+    then have the camera's pending frames measured (`measure` False: the caller measures them itself). Its log
+    lines carry the request id of the request that posted the image."""
     frame_id = str(frame_uuid)
     with read_session_factory(settings)() as session:
         frame = session.get(Frame, frame_uuid)
@@ -67,7 +69,17 @@ def detect_people(settings: Settings, dispatcher: RedisDispatcher, frame_uuid: u
         return GONE
     # The frame's own request id: also right for a job queued again by a starting worker, which has no meta.
     with request_id_context(request_id), log_context(camera_id=camera.id, frame_id=frame_id):
-        return _detect(settings, dispatcher, frame_uuid, camera, data, guide)
+        outcome = _detect(settings, dispatcher, frame_uuid, camera, data, guide)
+    if outcome == DONE and measure:
+        dispatcher.measure_requested([camera.id])
+    return outcome
+
+
+def camera_of(settings: Settings, frame_uuid: uuid.UUID) -> str | None:
+    """The camera of a stored frame (None: gone)."""
+    with read_session_factory(settings)() as session:
+        frame = session.get(Frame, frame_uuid)
+        return None if frame is None else frame.camera_id
 
 
 def _mark_static(
@@ -138,5 +150,4 @@ def _detect(
             "guided": guide is not None,
         },
     )
-    dispatcher.measure_requested([camera.id])
     return DONE

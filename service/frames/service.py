@@ -20,12 +20,13 @@ from sqlalchemy.orm import Session
 from service.calibration import moves
 from service.calibration.camera_model import calibration_from_version
 from service.calibration.repository import current_calibration, movement_state
-from service.calibration.service import calibration_due
+from service.calibration.service import may_be_due, solve_due
 from service.domain import DONE, FAILED, GONE, PENDING, FrameOutcome, PersonIn, StoredCentres
 from service.frames.keypoints import person_from_centres, person_from_keypoints
 from service.frames.measure import FrameComputation, measure_people
 from service.frames.repository import frames_points, pending_frames, record_frame_outcomes
 from service.frames.schemas import PersonObservation
+from service.geometry import Calibration
 from service.http.problems import ProblemError, field_errors
 from service.observability.logs import JOBS_LOGGER
 from service.settings import Settings
@@ -108,11 +109,13 @@ def compute_frame_result(
     *,
     image_size_px: tuple[int, int],
     distance_threshold_m: float,
+    camera: Calibration | None = None,
 ) -> FrameComputation:
-    """A frame's result with a stored calibration version (see `measure_people`)."""
+    """A frame's result with a stored calibration version (see `measure_people`); `camera` is the version as the
+    geometry's Calibration when the caller already has it (a measuring job builds it once per chunk, not per frame)."""
     return measure_people(
         people,
-        calibration_from_version(calibration, image_size_px),
+        camera if camera is not None else calibration_from_version(calibration, image_size_px),
         distance_threshold_m=distance_threshold_m,
         calibration_version=calibration.version,
         noise_px=calibration.noise_px or 0.0,
@@ -121,9 +124,14 @@ def compute_frame_result(
 
 
 def frame_outcome(
-    frame: Frame, people: Sequence[StoredCentres], camera: Camera, calibration: CalibrationVersion
+    frame: Frame,
+    people: Sequence[StoredCentres],
+    camera: Camera,
+    calibration: CalibrationVersion,
+    geometry: Calibration | None = None,
 ) -> FrameOutcome:
-    """A stored frame measured with `calibration`: done with its result, or failed with the reason (no I/O).
+    """A stored frame measured with `calibration` (`geometry`: the same as the geometry's Calibration, if built
+    already): done with its result, or failed with the reason (no I/O).
 
     Bad stored data for one frame (a person the geometry refuses) fails that frame, not the worker's batch.
     """
@@ -133,6 +141,7 @@ def frame_outcome(
             calibration,
             image_size_px=(camera.image_width_px, camera.image_height_px),
             distance_threshold_m=camera.distance_threshold_m,
+            camera=geometry,
         )
     except (ValueError, ArithmeticError) as exc:
         return FrameOutcome(
@@ -177,7 +186,8 @@ def measure_pending(settings: Settings, dispatcher: RedisDispatcher, camera_id: 
         watched = moves.watch(calibration, stored_test, frames, people) if frames else None
         moved_at = None if watched is None else watched.moved_at
         measured = [frame for frame in frames if moved_at is None or frame.timestamp < moved_at]
-        outcomes = [frame_outcome(frame, people.get(frame.id, []), camera, calibration) for frame in measured]
+        geometry = _geometry(calibration, camera) if measured else None
+        outcomes = [frame_outcome(frame, people.get(frame.id, []), camera, calibration, geometry) for frame in measured]
         if watched is not None:
             client_ids = {frame.id: frame.client_frame_id for frame in measured}
 
@@ -194,11 +204,28 @@ def measure_pending(settings: Settings, dispatcher: RedisDispatcher, camera_id: 
         if time.monotonic() > deadline:
             dispatcher.measure_requested([camera_id])  # we are running: this schedules our re-run
             break
-    if calibration_due(
-        camera, min_people=settings.calibration_min_people, growth_factor=settings.calibration_growth_factor
-    ):
+    if _solve_due(settings, camera):
         dispatcher.calibration_requested(camera_id, False)
     return outcome
+
+
+def _solve_due(settings: Settings, camera: Camera) -> bool:
+    """Whether the camera is due a solve (service.calibration.service.next_solve_at); most jobs learn that it is
+    not without a read."""
+    if not may_be_due(camera, settings):
+        return False
+    with read_session_factory(settings)() as session:
+        return solve_due(session, camera, settings)
+
+
+def _geometry(calibration: CalibrationVersion, camera: Camera) -> Calibration | None:
+    """The chunk's calibration as the geometry's Calibration, built once for all its frames (per frame it was
+    2.5 % of a measuring job's time); None when the stored version cannot be one, so each frame fails with the
+    reason as before."""
+    try:
+        return calibration_from_version(calibration, (camera.image_width_px, camera.image_height_px))
+    except (ValueError, ArithmeticError):
+        return None
 
 
 def store_outcomes(

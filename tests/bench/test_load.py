@@ -14,6 +14,7 @@ from typer.testing import CliRunner
 
 from bench.frames import coco17_keypoints, walking_cameras
 from bench.http_client import Connection, HttpError, serve
+from bench.load_calibration import CalibrationWatch
 from bench.load_stats import KindStats
 from bench.metrics_text import delta_by, parse_metrics
 from bench.profile import ProfileSummary
@@ -102,6 +103,19 @@ def test_kind_stats_count_every_non_success_as_an_error() -> None:
     assert stats.end_to_end_s() == [0.01, 0.52, 30.0]
 
 
+def test_calibration_watch_dates_each_due_episode_between_polls_and_pairs_it_with_its_solve() -> None:
+    """Evidence crosses the target (evidence + people needed) between polls: the due time is interpolated; the
+    solve is the first stored at or after it; an episode open at the end counts as never solved."""
+    watch = CalibrationWatch()
+    for wall_s, evidence, needed in ((100.0, 80, 20), (102.0, 120, 0), (104.0, 160, 80), (106.0, 240, 0)):
+        body = json.dumps({"evidence_count": evidence, "people_needed": needed}).encode()
+        watch.record("cam", wall_s, body)
+    watch.record("late", 90.0, json.dumps({"evidence_count": 50, "people_needed": 0}).encode())  # due before
+    assert watch.due_times("cam") == [101.0, 106.0]
+    fresh = watch.freshness({"cam": [103.5], "late": [100.5]}, window=(100.0, 110.0), end_s=120.0)
+    assert fresh.solved_s == [2.5, 10.5] and fresh.unsolved_waited_s == [14.0] and fresh.solves_in_window == 2
+
+
 def test_metrics_deltas_by_label() -> None:
     before = parse_metrics('# TYPE c counter\nc_total{queue="frames"} 3\nc_total{queue="pose"} 1\n')
     after = parse_metrics(
@@ -155,6 +169,7 @@ def test_bench_load_runs_end_to_end_and_prints_its_tables(tmp_path: Path) -> Non
         "Requests in the 3 s window",
         "Queue lag",
         "POST to done",
+        "calibration, due to solved",
         "CPU by process",
         "load client",
         "webhooks:",

@@ -18,9 +18,16 @@ from service.calibration.repository import (
     get_calibration,
     reset_calibration,
 )
-from service.calibration.service import calibration_due
+from service.calibration.service import (
+    evidence_for_next_solve,
+    has_converged,
+    next_solve_at,
+    people_needed,
+    solve_due,
+)
 from service.cameras.repository import CameraNotFoundError, get_camera
 from service.domain import CalibrationValues
+from service.settings import Settings
 from service.store.models import CalibrationVersion, Camera, Observation
 from tests.support.store import add_camera, count, evidence_count, ok_values, populate_cells
 
@@ -30,12 +37,66 @@ pytestmark = pytest.mark.both_backends
 def test_calibration_is_due_first_at_the_minimum_then_on_growth() -> None:
     def due(evidence: int, last: int) -> bool:
         camera = Camera(usable_evidence_count=evidence, evidence_at_last_solve=last)
-        return calibration_due(camera, min_people=30, growth_factor=1.5)
+        return evidence >= evidence_for_next_solve(camera, min_people=30, growth_factor=1.5)
 
     assert not due(29, 0)
     assert due(30, 0)
     assert not due(44, 30)
     assert due(45, 30)
+
+
+def test_more_people_stop_being_due_once_they_no_longer_sharpen_the_solve() -> None:
+    """growth_factor while a solve's sample grows, refresh_factor once it is full or the camera has converged."""
+
+    def target(last: int, *, converged: bool = False) -> int:
+        camera = Camera(usable_evidence_count=0, evidence_at_last_solve=last)
+        schedule = {"min_people": 30, "growth_factor": 1.5, "refresh_factor": 4.0, "sample_cap": 2000}
+        return evidence_for_next_solve(camera, **schedule, converged=converged)
+
+    assert target(0) == 30 and target(1000) == 1500 and target(1999) == 2999
+    assert target(2000) == 8000 and target(5000) == 20_000  # a full sample: only a refresh is due
+    assert target(100, converged=True) == 400
+
+
+def _solved(session: Session, fx_px: float, *, grade: str = "good", normal: tuple = (0.0, -0.8, 0.6)) -> None:
+    values = ok_values(
+        evidence_count=200,
+        fx_px=fx_px,
+        fx_std_px=20.0,
+        normal=normal,
+        normal_std_deg=0.5,
+        rho_std_m=0.1,
+        quality={"grade": grade},
+    )
+    add_calibration(session, "cam-1", values, make_current=True)
+
+
+def test_a_camera_converges_when_a_solve_moves_the_answer_by_less_than_its_sigma(session: Session) -> None:
+    camera = add_camera(session, "cam-1")
+    _solved(session, 1000.0)
+    assert not has_converged(session, camera)  # one solve: nothing to compare with
+    _solved(session, 1015.0)  # 0.75 sigma from the one before
+    assert has_converged(session, camera)
+    _solved(session, 1050.0)  # the focal length moved by 1.75 sigma: back on the fast schedule
+    assert not has_converged(session, camera)
+    _solved(session, 1050.0, normal=(0.0, -0.79, 0.613))  # the normal moved by 0.95 degrees (1.9 sigma)
+    assert not has_converged(session, camera)
+    _solved(session, 1050.0, normal=(0.0, -0.79, 0.613), grade="rough")  # agrees, but not graded good
+    assert not has_converged(session, camera)
+
+
+def test_a_converged_camera_is_not_due_on_every_growth_of_its_evidence(session: Session) -> None:
+    """With its last two solves in agreement the camera waits for the refresh factor; a camera whose last solve
+    moved the answer is due at the growth factor, as before."""
+    settings = Settings(calibration_min_people=30, calibration_growth_factor=1.5, calibration_refresh_factor=4.0)
+    camera = add_camera(session, "cam-1")
+    _solved(session, 1000.0)
+    _solved(session, 1010.0)
+    camera.usable_evidence_count = 300  # the last solve's was 200
+    assert next_solve_at(session, camera, settings) == 800 and not solve_due(session, camera, settings)
+    assert people_needed(session, camera, settings) == 500
+    _solved(session, 1100.0)
+    assert next_solve_at(session, camera, settings) == 300 and solve_due(session, camera, settings)
 
 
 def test_versions_increase_and_only_allowed_ones_become_current(session: Session) -> None:

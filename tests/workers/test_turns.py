@@ -66,8 +66,8 @@ def test_pose_and_calibration_do_not_wait_behind_a_measuring_backlog(connection:
     # The alert is queued by the 21st frames job and runs next, before anything else: webhooks stay first.
     frames_seen = [index for index, name in enumerate(shared) if name == "frames"]
     assert shared[frames_seen[20] + 1] == "alert"
-    # While all three have work, each gets worker time in proportion to its share (2 : 1 : 1), to one job.
-    busy = shared[: max(len(shared) - 1 - shared[::-1].index(kind) for kind in ("pose", "calibration"))]
+    # While all three have work, each gets worker time in proportion to its share (2 : 2 : 1), to one job.
+    busy = shared[: min(len(shared) - 1 - shared[::-1].index(kind) for kind in ("pose", "calibration"))]
     used = _time_shares(busy)
     total_share = sum(QUEUE_SHARES.values())
     for kind, queue in (("frames", FRAMES_QUEUE), ("pose", POSE_QUEUE), ("calibration", CALIBRATION_QUEUE)):
