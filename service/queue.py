@@ -170,6 +170,10 @@ end
 redis.call('DEL', KEYS[1])
 return 0
 """
+_RELEASE_LOST = """
+if redis.call('GET', KEYS[1]) ~= 'queued:' .. ARGV[1] then return 0 end
+return redis.call('DEL', KEYS[1])
+"""
 _REFRESH = """
 if redis.call('GET', KEYS[1]) ~= 'running:' .. ARGV[1] then return 0 end
 redis.call('EXPIRE', KEYS[1], ARGV[2])
@@ -219,6 +223,7 @@ class CameraGate:
         self._start = connection.register_script(_START)
         self._finish = connection.register_script(_FINISH)
         self._refresh = connection.register_script(_REFRESH)
+        self._release_lost = connection.register_script(_RELEASE_LOST)
 
     def keys(self, camera_id: str) -> list[str]:
         prefix = f"posemetry:{self.kind}:{camera_id}"
@@ -255,6 +260,21 @@ class CameraGate:
         """
         args = [job_id, next_job_id, self.queued_ttl_s, "1" if completed else "0"]
         return bool(self._finish(keys=self.keys(camera_id), args=args))
+
+    def queued_claims(self, camera_ids: Sequence[str]) -> list[tuple[str, str]]:
+        """(camera id, job id) of each camera whose slot a queued job holds (one round trip)."""
+        if not camera_ids:
+            return []
+        locks = self.connection.mget([self.keys(camera_id)[0] for camera_id in camera_ids])
+        return [
+            (camera_id, lock.decode()[len("queued:") :])
+            for camera_id, lock in zip(camera_ids, locks, strict=True)
+            if lock is not None and lock.startswith(b"queued:")
+        ]
+
+    def release_lost(self, camera_id: str, job_id: str) -> bool:
+        """Free the camera's slot if `job_id` still holds it as queued (the caller found that job lost)."""
+        return bool(self._release_lost(keys=self.keys(camera_id), args=[job_id]))
 
     def forced_outstanding(self, camera_ids: Sequence[str]) -> list[str]:
         """The cameras with a forced request not yet completed (one round trip): the recovery pass asks for their
@@ -293,6 +313,16 @@ def _job_status(connection: redis.Redis, job_id: str) -> JobStatus | None:
     except (NoSuchJobError, InvalidJobOperation):
         # Gone, or finished and deleted (result_ttl=0) between the fetch and the status read: no job waits.
         return None
+
+
+def _waits(status: bytes | None, queue_position: int | None) -> bool:
+    """Whether a job will run without being asked again: waiting in its queue, scheduled or deferred, or started
+    (RQ retries a started job whose process died)."""
+    if status is None:
+        return False
+    if JobStatus(status.decode()) == JobStatus.QUEUED:
+        return queue_position is not None
+    return JobStatus(status.decode()) in _UNDER_WAY
 
 
 def new_job_id(kind: str, camera_id: str) -> str:
@@ -456,6 +486,36 @@ class RedisDispatcher:
 
     def calibration_state(self, camera_id: str) -> str:
         return self.state(CALIBRATION_QUEUE, camera_id)
+
+    def release_lost_claims(self, kind: str, camera_ids: Sequence[str]) -> int:
+        """Free each camera slot held by a queued job of `kind` that waits nowhere; returns how many were freed.
+
+        A claim outlives its job when the job never reached its queue (the API or a worker died between the gate
+        and the enqueue) or when a worker died between taking the job off the queue and RQ marking it started:
+        RQ's registry cleanup skips a job that is not `started`, so nothing would run it, and every request would
+        find the camera queued until the claim expires (FRAMES_QUEUED_TTL_S: three minutes of frames left
+        pending). The recovery pass frees such slots before asking again. A job caught in flight between the
+        queue and its start is taken for lost too; its second run is one more gated run, which the gate makes
+        harmless (see CameraGate).
+        """
+        try:
+            claims = self.gates[kind].queued_claims(camera_ids)
+            if not claims:
+                return 0
+            queue_key = self.queues[kind].key
+            pipe = self.connection.pipeline(transaction=False)
+            for _, job_id in claims:
+                pipe.hget(Job.key_for(job_id), "status")
+                pipe.lpos(queue_key, job_id)
+            answers = pipe.execute()
+            released = 0
+            for k, (camera_id, job_id) in enumerate(claims):
+                status, position = answers[2 * k], answers[2 * k + 1]
+                if not _waits(status, position):
+                    released += self.gates[kind].release_lost(camera_id, job_id)
+            return released
+        except _REDIS_ERRORS as exc:
+            raise DispatchUnavailableError(f"job queue unavailable: {exc}") from exc
 
     def forced_calibrations(self, camera_ids: Sequence[str]) -> list[str]:
         """The cameras whose forced solve is still to be completed (see CameraGate.forced_outstanding)."""

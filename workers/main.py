@@ -117,7 +117,9 @@ def requeue_pending(settings: Settings, dispatcher: RedisDispatcher, *, periodic
     """The recovery pass (see the module docstring); `periodic` leaves alone deliveries that are only just due."""
     factory = sessions.read_session_factory(settings)
     with factory() as session:
-        frames = dispatcher.measure_requested(cameras_with_pending_frames(session, calibrated_only=True))
+        pending = cameras_with_pending_frames(session, calibrated_only=True)
+        dispatcher.release_lost_claims(FRAMES_QUEUE, pending)
+        frames = dispatcher.measure_requested(pending)
         images = dispatcher.images_pending(frames_detecting(session))
     calibrations = 0
     after: str | None = None
@@ -130,6 +132,7 @@ def requeue_pending(settings: Settings, dispatcher: RedisDispatcher, *, periodic
         due += [
             camera_id for camera_id in dispatcher.forced_calibrations([c.id for c in cameras]) if camera_id not in due
         ]
+        dispatcher.release_lost_claims(CALIBRATION_QUEUE, due)
         for camera_id in due:
             dispatcher.calibration_requested(camera_id, False)
             calibrations += 1

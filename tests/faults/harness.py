@@ -210,14 +210,13 @@ def started_job(connection: redis.Redis, queue: str, job_id: str | None = None) 
     return None
 
 
-def wait_for_started_job(connection: redis.Redis, queue: str, job_id: str | None = None) -> tuple[str, str]:
-    # Polled fast: the kill must land while the job still works.
-    return wait_until(lambda: started_job(connection, queue, job_id), f"a started {queue} job", poll_s=0.005)
-
-
-def worker_pid(connection: redis.Redis, job_id: str, execution_id: str) -> int:
-    """The process running a job's execution (a SimpleWorker runs its jobs in its own process)."""
-    execution = Execution.fetch(execution_id, job_id, connection=connection)
+def worker_pid(connection: redis.Redis, job_id: str, execution_id: str) -> int | None:
+    """The process running a job's execution (a SimpleWorker runs its jobs in its own process); None when the
+    execution ended between being listed and being read (a frames job takes milliseconds)."""
+    try:
+        execution = Execution.fetch(execution_id, job_id, connection=connection)
+    except ValueError:  # "Execution ... not found in Redis"
+        return None
     worker = Worker.find_by_key(Worker.redis_worker_namespace_prefix + execution.worker_name, connection=connection)
     assert worker is not None and worker.pid, f"no live worker registration for {execution.worker_name}"
     return worker.pid
@@ -225,8 +224,14 @@ def worker_pid(connection: redis.Redis, job_id: str, execution_id: str) -> int:
 
 def kill_worker_running(connection: redis.Redis, queue: str, job_id: str | None = None) -> tuple[str, int, float]:
     """SIGKILL the worker process as soon as RQ has started a job of `queue`; (job id, pid, time of the kill)."""
-    found_id, execution_id = wait_for_started_job(connection, queue, job_id)
-    pid = worker_pid(connection, found_id, execution_id)
+
+    def running() -> tuple[str, int] | None:
+        found = started_job(connection, queue, job_id)
+        pid = None if found is None else worker_pid(connection, *found)
+        return None if found is None or pid is None else (found[0], pid)
+
+    # Polled fast: the kill must land while the job still works.
+    found_id, pid = wait_until(running, f"a started {queue} job", poll_s=0.005)
     os.kill(pid, signal.SIGKILL)
     return found_id, pid, time.monotonic()
 

@@ -13,7 +13,14 @@ from rq.executions import ExecutionRegistry
 from rq.job import Job
 from sqlalchemy.orm import Session, sessionmaker
 
-from service.queue import CALIBRATION_QUEUE, JOB_LIVENESS_TTL_S, CameraGate, RedisDispatcher, RequestOutcome
+from service.queue import (
+    CALIBRATION_QUEUE,
+    FRAMES_QUEUE,
+    JOB_LIVENESS_TTL_S,
+    CameraGate,
+    RedisDispatcher,
+    RequestOutcome,
+)
 from service.settings import get_settings
 from tests.support.jobs import simulated_camera, store_frames
 from workers import recovery
@@ -77,6 +84,36 @@ def test_the_recovery_pass_asks_again_for_a_forced_solve_that_failed(
     gate.finish(camera.camera_id, "j1", "j2", completed=False)
     assert requeue_pending(get_settings(), redis_dispatcher).calibrations == 1
     assert Queue(CALIBRATION_QUEUE, connection=connection).count == 1
+
+
+def test_a_queued_slot_whose_job_waits_nowhere_is_freed(
+    redis_dispatcher: RedisDispatcher, connection: redis.Redis
+) -> None:
+    gate, queue = redis_dispatcher.gates[FRAMES_QUEUE], Queue(FRAMES_QUEUE, connection=connection)
+    for camera_id in ("waiting", "taken", "started"):
+        assert redis_dispatcher.measure_requested([camera_id]) == 1
+    job_ids = dict(gate.queued_claims(["waiting", "taken", "started"]))
+    gate.request("never-queued", "frames-lost")  # the API died between the gate and the enqueue
+    # A worker took the job off the queue and died before RQ marked it started: RQ's cleanup skips such a job.
+    connection.lrem(queue.key, 0, job_ids["taken"])
+    # A started job is RQ's to see through (retried if its process dies).
+    connection.lrem(queue.key, 0, job_ids["started"])
+    connection.hset(Job.key_for(job_ids["started"]), "status", "started")
+    cameras = ["waiting", "taken", "started", "never-queued", "idle"]
+    assert redis_dispatcher.release_lost_claims(FRAMES_QUEUE, cameras) == 2
+    assert [gate.state(c) for c in cameras] == ["queued", "idle", "queued", "idle", "idle"]
+    assert redis_dispatcher.release_lost_claims(FRAMES_QUEUE, cameras) == 0
+
+
+def test_the_recovery_pass_queues_again_a_camera_whose_queued_job_was_lost(
+    sessions: sessionmaker[Session], redis_dispatcher: RedisDispatcher, connection: redis.Redis
+) -> None:
+    camera = simulated_camera(sessions)
+    store_frames(sessions, camera, 1)  # 10 people: not due (30 needed)
+    gate = redis_dispatcher.gates[CALIBRATION_QUEUE]
+    gate.request(camera.camera_id, "calibration-lost", forced=True)  # never reached the queue
+    assert requeue_pending(get_settings(), redis_dispatcher).calibrations == 1
+    assert [job.args[0] for job in Queue(CALIBRATION_QUEUE, connection=connection).get_jobs()] == [camera.camera_id]
 
 
 def test_the_pacemaker_beats_every_registered_job_until_it_ends() -> None:
