@@ -249,11 +249,15 @@ class _SharesTime:
             self._share_order()
 
     def oldest_wait_s(self, queue: Queue) -> float:
-        """How long the job at the head of `queue` has waited (0 when none, or its enqueue time is unknown)."""
-        job_id = queue.connection.lindex(queue.key, 0)
-        if job_id is None:
+        """How long the job at the head of `queue` has waited (0 when none, its enqueue time is unknown, or Redis
+        cannot say: the worker's own loop deals with an outage, the order of its queues must not)."""
+        try:
+            job_id = queue.connection.lindex(queue.key, 0)
+            if job_id is None:
+                return 0.0
+            stamp = queue.connection.hget(queue.job_class.key_for(job_id.decode()), "enqueued_at")
+        except (redis.ConnectionError, redis.TimeoutError):
             return 0.0
-        stamp = queue.connection.hget(queue.job_class.key_for(job_id.decode()), "enqueued_at")
         if not stamp:
             return 0.0
         return max(0.0, (self.wall_clock() - utcparse(stamp.decode())).total_seconds())

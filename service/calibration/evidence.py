@@ -158,8 +158,8 @@ def _page_parameters(index: int, cell: int, cursor: _CellCursor, n: int) -> dict
     wrapping to [0, start)), after the last (key, id) read, if any."""
     low, high = (0, cursor.start) if cursor.wrapped else (cursor.start, SAMPLE_KEY_SPACE)
     after_key, after_id = (low - 1, -1) if cursor.last is None else cursor.last
-    values = {"cell": cell, "n": n, "low": max(low, after_key), "high": high, "after_key": after_key}
-    return {f"{name}_{index}": value for name, value in {**values, "after_id": after_id}.items()}
+    values = dict(cell=cell, n=n, low=max(low, after_key), high=high, after_key=after_key, after_id=after_id)
+    return {f"{name}_{index}": value for name, value in values.items()}
 
 
 # Observation ids per statement when reading their frames' times: well under SQLite's bound-parameter limit.
