@@ -33,6 +33,8 @@ from typing import Any
 import redis
 from rq import Queue
 from rq.job import Job
+from rq.utils import now as rq_now
+from rq.utils import utcparse
 from sqlalchemy.exc import SQLAlchemyError
 
 from service.calibration.service import solve_due
@@ -200,10 +202,17 @@ class _Recovers:
 # The memory is short: a burst (the seed images of a new camera) must not leave its queue behind the others for long.
 QUEUE_SHARES: dict[str, float] = {FRAMES_QUEUE: 2.0, POSE_QUEUE: 2.0, CALIBRATION_QUEUE: 1.0}
 SHARE_HALF_LIFE_S = 10.0
+# Aging: a queue whose oldest job has waited longer than its target wait gets its share multiplied by
+# wait / target, up to MAX_AGING. Solves are due within 10 s of a camera's evidence calling for one and an image
+# frame is answered within 2 s (issue 17); measuring has no such target, as a frames job answers every frame its
+# camera has waiting however long it waited, so it keeps its share and gives the others up to MAX_AGING x theirs.
+WAIT_TARGET_S: dict[str, float] = {CALIBRATION_QUEUE: 10.0, POSE_QUEUE: 2.0}
+MAX_AGING = 4.0
 
 
 class _SharesTime:
-    """Webhooks first; the other queues share the worker's time by QUEUE_SHARES, so none starves another.
+    """Webhooks first; the other queues share the worker's time by QUEUE_SHARES (aged by their waits), so none
+    starves another.
 
     RQ's default serves its queues in strict order, and under load the frames queue is never empty (cameras post
     faster than one worker measures, so there is always a camera with pending frames): image frames waited 37 s
@@ -213,10 +222,17 @@ class _SharesTime:
     none leaves its share to the others. Time, not turns, because a solve or a pose job takes ten times a frames
     job. Webhooks keep their place at the front: an alert is what users wait for, and a delivery is one short HTTP
     request.
+
+    Fixed shares left solves waiting a minute and more under that load (the solves of fifty cameras fall due
+    together, and one in five of the worker's seconds clears a few per second): a queue whose oldest job has waited
+    past its WAIT_TARGET_S gets a larger share while it waits (see MAX_AGING), and its usual one once it has caught
+    up. Measuring, which has no target, keeps its own share whatever the others wait, so it is slowed, never
+    stopped.
     """
 
     _ordered_queues: list[Queue]
     clock = staticmethod(time.monotonic)
+    wall_clock = staticmethod(rq_now)
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
@@ -232,6 +248,28 @@ class _SharesTime:
                 self.used_s[queue.name] += self.clock() - started
             self._share_order()
 
+    def oldest_wait_s(self, queue: Queue) -> float:
+        """How long the job at the head of `queue` has waited (0 when none, its enqueue time is unknown, or Redis
+        cannot say: the worker's own loop deals with an outage, the order of its queues must not)."""
+        try:
+            job_id = queue.connection.lindex(queue.key, 0)
+            if job_id is None:
+                return 0.0
+            stamp = queue.connection.hget(queue.job_class.key_for(job_id.decode()), "enqueued_at")
+        except (redis.ConnectionError, redis.TimeoutError):
+            return 0.0
+        if not stamp:
+            return 0.0
+        return max(0.0, (self.wall_clock() - utcparse(stamp.decode())).total_seconds())
+
+    def share(self, queue: Queue) -> float | None:
+        """The queue's share of the worker now: QUEUE_SHARES, aged by its oldest job's wait past WAIT_TARGET_S."""
+        share = QUEUE_SHARES.get(queue.name)
+        target = WAIT_TARGET_S.get(queue.name)
+        if share is None or target is None:
+            return share
+        return share * min(max(1.0, self.oldest_wait_s(queue) / target), MAX_AGING)
+
     def _share_order(self) -> None:
         now = self.clock()
         decay = 0.5 ** ((now - self._decayed_at) / SHARE_HALF_LIFE_S)
@@ -240,7 +278,7 @@ class _SharesTime:
             self.used_s[name] *= decay
 
         def behind(queue: Queue) -> tuple[bool, float]:
-            share = QUEUE_SHARES.get(queue.name)
+            share = self.share(queue)
             return queue.name != WEBHOOKS_QUEUE, 0.0 if share is None else self.used_s[queue.name] / share
 
         self._ordered_queues = sorted(self._ordered_queues, key=behind)  # stable: ties keep their order

@@ -7,13 +7,27 @@ pseudo-random sample key. A sample then reads a few index ranges per cell, whate
 
 from __future__ import annotations
 
+import functools
 import random
 from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any, cast
 
 import numpy as np
-from sqlalchemy import BigInteger, ColumnElement, Select, Table, literal, select, true, union_all, update
+from sqlalchemy import (
+    BigInteger,
+    ColumnElement,
+    Executable,
+    Integer,
+    Select,
+    Table,
+    bindparam,
+    literal,
+    select,
+    true,
+    union_all,
+    update,
+)
 from sqlalchemy.orm import Session
 
 from service.geometry.evidence import SAMPLE_GRID
@@ -93,36 +107,59 @@ class _CellCursor:
     rows: list[Any] = field(default_factory=list)
 
 
-_SAMPLE_COLUMNS = (
-    Observation.id,
-    Observation.cell,
-    Observation.sample_key,
-    Observation.shoulder_x_px,
-    Observation.shoulder_y_px,
-    Observation.ankle_x_px,
-    Observation.ankle_y_px,
+_SAMPLE_COLUMNS = tuple(
+    _OBSERVATIONS.c[name]
+    for name in ("id", "cell", "sample_key", "shoulder_x_px", "shoulder_y_px", "ankle_x_px", "ankle_y_px")
 )
 
 
-def _cell_page(camera_id: str, epoch: int, cell: int, cursor: _CellCursor, n: int) -> Select[*tuple[Any, ...]]:
-    """The next n rows of one cell: an index range scan on (camera_id, epoch, usable, cell, sample_key)."""
-    key, oid = Observation.sample_key, Observation.id
-    conditions = [
-        Observation.camera_id == camera_id,
-        Observation.epoch == epoch,
-        Observation.usable == true(),
-        Observation.cell == cell,
-        key.is_not(None),  # the partial index holds keyed people only
-    ]
-    if cursor.wrapped:
-        conditions.append(key < cursor.start)
-    if cursor.last is not None:
-        last_key, last_id = cursor.last
-        # The plain bound lets both backends start the index scan at last_key; the OR breaks key ties by id.
-        conditions += [key >= last_key, (key > last_key) | (oid > last_id)]
-    elif not cursor.wrapped:
-        conditions.append(key >= cursor.start)
-    return select(*_SAMPLE_COLUMNS).where(*conditions).order_by(key, oid).limit(n)
+def _cell_page(index: int) -> Select[*tuple[Any, ...]]:
+    """The next rows of one cell: an index range scan on (camera_id, epoch, usable, cell, sample_key). The cell,
+    the rows wanted and where to resume are bound parameters suffixed `index` (see `_page_parameters`)."""
+    obs = _OBSERVATIONS.c
+
+    def parameter(name: str) -> Any:
+        return bindparam(f"{name}_{index}", type_=Integer if name in ("cell", "n") else BigInteger)
+
+    return (
+        select(*_SAMPLE_COLUMNS)
+        .where(
+            obs.camera_id == bindparam("camera_id"),
+            obs.epoch == bindparam("epoch"),
+            obs.usable == true(),
+            obs.cell == parameter("cell"),
+            obs.sample_key.is_not(None),  # the partial index holds keyed people only
+            # The plain lower bound lets both backends scan the index from the resume point; the upper one is a
+            # filter only (as a bound, SQLite would scan the camera's whole key range on another index instead of
+            # the cell's); the OR breaks key ties by id.
+            obs.sample_key >= parameter("low"),
+            obs.sample_key + 0 < parameter("high"),
+            (obs.sample_key > parameter("after_key")) | (obs.id > parameter("after_id")),
+        )
+        .order_by(obs.sample_key, obs.id)
+        .limit(parameter("n"))
+    )
+
+
+@functools.cache
+def _round_statement(cells: int) -> Executable:
+    """One round's statement for this many cells: a UNION ALL of `_cell_page`s, built once per process.
+
+    Built from the cursors' values instead, every round's mix of cells and cursor states was a new statement for
+    SQLAlchemy to compile (its cache keys on structure), about a third of a solve's CPU under load; with every
+    value bound, there are at most GRID_CELLS statements, each compiled once.
+    """
+    pages = [_cell_page(index) for index in range(cells)]
+    return pages[0] if cells == 1 else union_all(*(page.subquery().select() for page in pages))
+
+
+def _page_parameters(index: int, cell: int, cursor: _CellCursor, n: int) -> dict[str, int]:
+    """The bound values of page `index`: n rows of `cell` from where its cursor stands (keys >= start first, then
+    wrapping to [0, start)), after the last (key, id) read, if any."""
+    low, high = (0, cursor.start) if cursor.wrapped else (cursor.start, SAMPLE_KEY_SPACE)
+    after_key, after_id = (low - 1, -1) if cursor.last is None else cursor.last
+    values = dict(cell=cell, n=n, low=max(low, after_key), high=high, after_key=after_key, after_id=after_id)
+    return {f"{name}_{index}": value for name, value in values.items()}
 
 
 # Observation ids per statement when reading their frames' times: well under SQLite's bound-parameter limit.
@@ -179,9 +216,10 @@ def sample_evidence(
                 break
             level += -(-(cap - total) // len(active))
             wanted = {cell: level - len(cursors[cell].rows) for cell in active}
-        pages = [_cell_page(camera_id, epoch, cell, cursors[cell], n) for cell, n in sorted(wanted.items())]
-        stmt = pages[0] if len(pages) == 1 else union_all(*(page.subquery().select() for page in pages))
-        rows = session.execute(stmt).all()
+        parameters: dict[str, Any] = {"camera_id": camera_id, "epoch": epoch}
+        for index, (cell, n) in enumerate(sorted(wanted.items())):
+            parameters.update(_page_parameters(index, cell, cursors[cell], n))
+        rows = session.execute(_round_statement(len(wanted)), parameters).all()
         queries += 1
         rows_read += len(rows)
         by_cell: dict[int, list[Any]] = {cell: [] for cell in wanted}

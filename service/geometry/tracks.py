@@ -109,7 +109,7 @@ def link_tracks(
         since = t - last_time[: len(members)]
         live = np.flatnonzero((since > 0.0) & (since <= max_gap_s + _TIME_TOLERANCE_S))
         if len(live):
-            cost = np.stack([gates.costs(members[k], current) for k in live])
+            cost = gates.costs([members[k] for k in live], current)
             rows, cols = linear_sum_assignment(np.where(np.isfinite(cost), cost, 1e9))
             for r, c in zip(rows, cols, strict=True):
                 if np.isfinite(cost[r, c]):
@@ -127,7 +127,12 @@ def link_tracks(
 
 
 class _Gates:
-    """The gates of the module docstring for one track against one frame's observations."""
+    """The gates of the module docstring for every live track against one frame's observations at once.
+
+    One frame's links are judged together, as (tracks, observations) arrays: a solve links a sample of a couple of
+    thousand people over hundreds of frame times, and judging each track on its own cost most of a solve's time in
+    numpy's per-call overhead.
+    """
 
     def __init__(
         self,
@@ -143,60 +148,77 @@ class _Gates:
         self.height_m, self.max_speed_m_s = height_m, max_speed_m_s
         self.max_size_ratio = max_size_ratio
 
-    def costs(self, track: list[int], current: np.ndarray) -> np.ndarray:
-        """(observations,) gated distances in units of the allowance; inf where the link is impossible.
+    def costs(self, tracks: list[list[int]], current: np.ndarray) -> np.ndarray:
+        """(tracks, observations) gated distances in units of the allowance; inf where the link is impossible.
 
-        All of `current` are in one frame, so the gap since the track's last observation is one number (the
-        caller passes live tracks only: 0 < gap <= link_tracks' max_gap_s).
+        All of `current` are in one frame, so the gap since each track's last observation is one number per track
+        (the caller passes live tracks only: 0 < gap <= link_tracks' max_gap_s).
         """
-        last = track[-1]
-        gap = float(self.times[current[0]] - self.times[last])
-        size = 0.5 * (self.length[last] + self.length[current])
-        metre_px = size / self.height_m  # pixels per metre about these two observations
-        move = self.bottoms[current] - self.bottoms[last]
-        ratio = np.maximum(self.length[last], self.length[current]) / np.minimum(
-            self.length[last], self.length[current]
-        )
+        last = np.array([track[-1] for track in tracks])
+        gap = self.times[current[0]] - self.times[last]
+        last_length, current_length = self.length[last][:, None], self.length[current][None, :]
+        size = 0.5 * (last_length + current_length)
+        metre_px = size / self.height_m  # pixels per metre about each pair of observations
+        move = self.bottoms[current][None, :, :] - self.bottoms[last][:, None, :]
+        ratio = np.maximum(last_length, current_length) / np.minimum(last_length, current_length)
         jitter = _JITTER_FRACTION * size
-        ok = (np.linalg.norm(move, axis=1) <= self.max_speed_m_s * gap * metre_px + jitter) & (
+        ok = (np.linalg.norm(move, axis=2) <= self.max_speed_m_s * gap[:, None] * metre_px + jitter) & (
             ratio <= self.max_size_ratio
         )
-        # The track's observations of the last max(VELOCITY_WINDOW_S, gap) seconds, scanned from its end.
-        start, since = len(track) - 1, self.times[last] - max(VELOCITY_WINDOW_S, gap) - _TIME_TOLERANCE_S
-        while start > 0 and self.times[track[start - 1]] >= since:
-            start -= 1
-        window = track[start:]
-        span = self.times[last] - self.times[window[0]]
-        if len(window) >= 2 and gap <= MAX_EXTRAPOLATION * span + _TIME_TOLERANCE_S:
-            residual, fit_jitter, allowed_m = self._from_velocity(window, current)
-            cost = self._ellipse(last, residual, allowed_m * metre_px, jitter * fit_jitter)
-        elif gap <= SINGLE_MAX_GAP_S + _TIME_TOLERANCE_S:
-            cost = self._ellipse(last, move, SINGLE_SPEED_M_S * gap * metre_px, jitter)
-        else:
-            return np.full(len(current), np.inf)
+        windows = [self._window(track, float(g)) for track, g in zip(tracks, gap, strict=True)]
+        span = self.times[last] - self.times[[window[0] for window in windows]]
+        sizes = np.array([len(window) for window in windows])
+        fitted = (sizes >= 2) & (gap <= MAX_EXTRAPOLATION * span + _TIME_TOLERANCE_S)
+        single = ~fitted & (gap <= SINGLE_MAX_GAP_S + _TIME_TOLERANCE_S)
+        cost = np.full(move.shape[:2], np.inf)
+        if fitted.any():
+            rows = np.flatnonzero(fitted)
+            residual, fit_jitter, allowed_m = self._from_velocity([windows[r] for r in rows], current)
+            cost[rows] = self._ellipse(
+                last[rows], residual, allowed_m[:, None] * metre_px[rows], jitter[rows] * fit_jitter[:, None]
+            )
+        if single.any():
+            rows = np.flatnonzero(single)
+            reach_px = SINGLE_SPEED_M_S * gap[rows, None] * metre_px[rows]
+            cost[rows] = self._ellipse(last[rows], move[rows], reach_px, jitter[rows])
         return np.where(ok & (cost <= 1.0), cost, np.inf)
 
-    def _from_velocity(self, window: list[int], current: np.ndarray) -> tuple[np.ndarray, float, float]:
-        """The constant-velocity prediction's miss (a least-squares line through the window's ankle centres),
-        the keypoint jitter through the fit relative to that of a difference of two observations, and the
-        metres a walker may stray from the line: the gait's surge and a bounded acceleration."""
-        t = self.times[window]
-        centre = t.mean()
-        spread = float(((t - centre) ** 2).sum())
-        points = self.bottoms[window]
-        mean = points.mean(axis=0)
-        velocity = ((t - centre)[:, None] * (points - mean)).sum(axis=0) / spread
-        tau = float(self.times[current[0]] - centre)
-        residual = self.bottoms[current] - (mean + tau * velocity)
-        fit_jitter = float(np.sqrt((1.0 + 1.0 / len(window) + tau**2 / spread) / 2.0))
+    def _window(self, track: list[int], gap: float) -> list[int]:
+        """The track's observations of the last max(VELOCITY_WINDOW_S, gap) seconds, scanned from its end."""
+        start, since = len(track) - 1, self.times[track[-1]] - max(VELOCITY_WINDOW_S, gap) - _TIME_TOLERANCE_S
+        while start > 0 and self.times[track[start - 1]] >= since:
+            start -= 1
+        return track[start:]
+
+    def _from_velocity(
+        self, windows: list[list[int]], current: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per track: the constant-velocity prediction's miss of each observation (a least-squares line through
+        the window's ankle centres), the keypoint jitter through the fit relative to that of a difference of two
+        observations, and the metres a walker may stray from the line: the gait's surge and a bounded
+        acceleration. Windows of unequal length are padded with their first observation and masked out."""
+        count = np.array([len(window) for window in windows])
+        width = int(count.max())
+        index = np.array([[window[0]] * (width - len(window)) + window for window in windows])
+        mask = np.arange(width)[None, :] >= (width - count)[:, None]
+        t = self.times[index]
+        centre = np.where(mask, t, 0.0).sum(axis=1) / count
+        offset = np.where(mask, t - centre[:, None], 0.0)
+        spread = (offset**2).sum(axis=1)
+        points = np.where(mask[:, :, None], self.bottoms[index], 0.0)
+        mean = points.sum(axis=1) / count[:, None]
+        velocity = (offset[:, :, None] * (points - mean[:, None, :])).sum(axis=1) / spread[:, None]
+        tau = self.times[current[0]] - centre
+        residual = self.bottoms[current][None, :, :] - (mean + tau[:, None] * velocity)[:, None, :]
+        fit_jitter = np.sqrt((1.0 + 1.0 / count + tau**2 / spread) / 2.0)
         return residual, fit_jitter, GAIT_M + 0.5 * MAX_ACCEL_M_S2 * tau**2
 
     def _ellipse(
-        self, last: int, move_px: np.ndarray, reach_px: float | np.ndarray, jitter_px: float | np.ndarray
+        self, last: np.ndarray, move_px: np.ndarray, reach_px: np.ndarray, jitter_px: np.ndarray
     ) -> np.ndarray:
         """|move| against reach + jitter across the segment, ALONG_SEGMENT_SHARE x reach + jitter along it: ground
         metres seen along the segment are depth metres, foreshortened by tan(alpha)."""
-        along_unit = self.segment[last] / self.length[last]
-        along = move_px @ along_unit
-        across = move_px @ np.array([-along_unit[1], along_unit[0]])
+        along_unit = self.segment[last] / self.length[last][:, None]
+        along = (move_px * along_unit[:, None, :]).sum(axis=2)
+        across = move_px[:, :, 1] * along_unit[:, None, 0] - move_px[:, :, 0] * along_unit[:, None, 1]
         return np.hypot(along / (ALONG_SEGMENT_SHARE * reach_px + jitter_px), across / (reach_px + jitter_px))

@@ -6,10 +6,18 @@ from collections import Counter
 
 import numpy as np
 import pytest
-from sqlalchemy import select, text, update
+from sqlalchemy import event, select, text, update
 from sqlalchemy.orm import Session
 
-from service.calibration.evidence import GRID_CELLS, key_new_evidence, sample_evidence, sample_key
+from service.calibration.evidence import (
+    GRID_CELLS,
+    _CellCursor,
+    _page_parameters,
+    _round_statement,
+    key_new_evidence,
+    sample_evidence,
+    sample_key,
+)
 from service.geometry.evidence import SAMPLE_GRID, balanced_sample, grid_cells
 from service.store.models import Observation
 from tests.support.store import (
@@ -82,6 +90,46 @@ def test_observations_are_found_through_an_index(session: Session, statement: st
         session.execute(text("SET LOCAL enable_seqscan = off"))
         plan = " ".join(row[0] for row in session.execute(text(f"EXPLAIN {statement}")))
     assert "ix_observations_" in plan and "SCAN observations" not in plan and "Seq Scan" not in plan, plan
+
+
+@pytest.mark.parametrize("wrapped", [False, True])
+def test_a_sample_page_scans_one_cell_of_the_sampling_index(session: Session, wrapped: bool) -> None:
+    """The statement the sampler runs, with its bounds: on the cell's range of the sampling index, not on the
+    camera's whole key range (SQLite took that other index once the key's upper bound was a plain bound too)."""
+    cursor = _CellCursor(start=5_000, wrapped=wrapped, last=(7_000, 3) if not wrapped else (2_000, 3))
+    stmt = _round_statement(2).params(
+        camera_id="c", epoch=1, **_page_parameters(0, 3, cursor, 10), **_page_parameters(1, 4, _CellCursor(9), 10)
+    )
+    sql = str(stmt.compile(session.get_bind(), compile_kwargs={"literal_binds": True}))
+    if session.get_bind().dialect.name == "sqlite":
+        plan = " ".join(row[-1] for row in session.execute(text(f"EXPLAIN QUERY PLAN {sql}")))
+        assert plan.count("ix_observations_camera_id_epoch_usable_cell_sample_key (") == 2, plan
+    else:
+        session.execute(text("SET LOCAL enable_seqscan = off"))
+        plan = " ".join(row[0] for row in session.execute(text(f"EXPLAIN {sql}")))
+    assert "SCAN observations" not in plan and "Seq Scan" not in plan, plan
+
+
+def test_samples_reuse_one_statement_per_number_of_cells(session: Session) -> None:
+    """Every value of a round is bound, so SQLAlchemy compiles a statement per number of cells read, not one per
+    mix of cursor states (which made compiling most of a solve's CPU under load)."""
+    add_camera(session)
+    populate_cells(session, {cell: 3 + (cell * 7) % 11 for cell in range(0, GRID_CELLS, 2)})
+    statements: list[str] = []
+
+    def record(conn: object, cursor: object, statement: str, *args: object) -> None:
+        if "UNION ALL" in statement or "ORDER BY" in statement:
+            statements.append(statement)
+
+    engine = session.get_bind()
+    event.listen(engine, "before_cursor_execute", record)
+    try:
+        for seed in range(6):
+            sample_evidence(session, "cam-1", cap=150, seed=seed)
+    finally:
+        event.remove(engine, "before_cursor_execute", record)
+    pages = {statement: statement.count("ORDER BY") for statement in statements}
+    assert len(statements) > len(pages) and len(set(pages.values())) == len(pages) > 1
 
 
 def test_sample_is_spatially_balanced_capped_and_reads_little(session: Session) -> None:

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bench.simulate import camera_normal, project
-from service.geometry.tracks import link_tracks
+from service.geometry.tracks import _Gates, link_tracks
 
 
 def _walker(start: tuple[float, float], step: tuple[float, float], length_px: float, frames: int) -> np.ndarray:
@@ -178,3 +178,20 @@ def test_busy_low_frame_rate_strangers_are_rarely_merged(spacing_s: float, most_
     times = np.repeat(np.arange(frames) * spacing_s, 10)
     labels = link_tracks(times, points[:, 0], points[:, 1])
     assert 1.0 - len(set(labels)) / len(labels) <= most_linked
+
+
+def test_tracks_judged_together_get_the_costs_each_gets_alone() -> None:
+    # Tracks with windows of different lengths (one sighting, a short and a long history, one past the velocity's
+    # window) are judged in one batch against a frame: each row must be what that track alone gets.
+    rng = np.random.default_rng(3)
+    walkers = [_walker((300 + 200 * k, 700 - 30 * k), (4 - k, 1), 120 + 10 * k, 12) for k in range(4)]
+    times = np.tile(np.arange(12) / 10.0, 4)
+    points = np.concatenate(walkers) + rng.normal(0.0, 0.5, (48, 2, 2))
+    segment = points[:, 0] - points[:, 1]
+    gates = _Gates(times, points[:, 1], segment, np.hypot(*segment.T), 1.32, 3.0, 1.25)
+    tracks = [[10], [18, 19, 20, 21], [24, 25, 26, 27, 28, 29, 30, 31, 32, 33], [40, 42, 43]]
+    current = np.array([12 * k + 11 for k in range(4)])  # every walker's 12th sighting
+    together = gates.costs(tracks, current)
+    alone = np.stack([gates.costs([track], current)[0] for track in tracks])
+    np.testing.assert_array_equal(together, alone)
+    assert np.isfinite(np.diag(together)).all()  # each walker's own next sighting passes its gates

@@ -6,11 +6,14 @@ worker chooses depends on the jobs' (simulated) durations and nothing else.
 
 from __future__ import annotations
 
+from datetime import timedelta
+
 import redis
 from rq import Queue, SimpleWorker, get_current_job
+from rq.utils import now
 
 from service.queue import CALIBRATION_QUEUE, FRAMES_QUEUE, POSE_QUEUE, QUEUES, WEBHOOKS_QUEUE
-from workers.main import QUEUE_SHARES, _SharesTime
+from workers.main import MAX_AGING, QUEUE_SHARES, WAIT_TARGET_S, _SharesTime
 
 ORDER_KEY = "test:order"
 _now = [0.0]
@@ -72,3 +75,33 @@ def test_pose_and_calibration_do_not_wait_behind_a_measuring_backlog(connection:
     total_share = sum(QUEUE_SHARES.values())
     for kind, queue in (("frames", FRAMES_QUEUE), ("pose", POSE_QUEUE), ("calibration", CALIBRATION_QUEUE)):
         assert abs(used[kind] - sum(used.values()) * QUEUE_SHARES[queue] / total_share) <= 1.0, used
+
+
+def _solve_turn(worker_class: type[SharingWorker], connection: redis.Redis) -> int:
+    """Where a solve comes in a measuring backlog when the calibration queue has lately had twice its share."""
+    queues = {name: Queue(name, connection=connection) for name in (FRAMES_QUEUE, CALIBRATION_QUEUE)}
+    for _ in range(6):
+        queues[FRAMES_QUEUE].enqueue(work, "frames", 0.1)
+    queues[CALIBRATION_QUEUE].enqueue(work, "calibration", 1.0)
+    worker = worker_class(list(queues.values()), connection=connection)
+    worker.used_s.update(
+        {FRAMES_QUEUE: QUEUE_SHARES[FRAMES_QUEUE], CALIBRATION_QUEUE: 2 * QUEUE_SHARES[CALIBRATION_QUEUE]}
+    )
+    worker.work(burst=True)
+    served = [item.decode() for item in connection.lrange(ORDER_KEY, 0, -1)]
+    connection.delete(ORDER_KEY)
+    return served.index("calibration")
+
+
+def test_a_solve_waiting_past_its_target_gets_a_larger_share_until_served(connection: redis.Redis) -> None:
+    waited_s = MAX_AGING * WAIT_TARGET_S[CALIBRATION_QUEUE]
+
+    class Later(SharingWorker):
+        """The same worker, its jobs seen waited_s after they were queued."""
+
+        wall_clock = staticmethod(lambda: now() + timedelta(seconds=waited_s))
+
+    # A fresh solve waits its turn behind the measuring it is ahead of (its share is spent); one that has waited
+    # four times its target is served as soon as the job in hand is done (the first dequeue is RQ's order).
+    assert _solve_turn(SharingWorker, connection) == 6
+    assert _solve_turn(Later, connection) == 1
