@@ -39,6 +39,7 @@ from typing import TYPE_CHECKING, Any
 
 import redis
 from redis.backoff import ExponentialBackoff
+from redis.exceptions import NoScriptError
 from redis.retry import Retry as ConnectionRetry
 from rq import Queue, Retry
 from rq.exceptions import InvalidJobOperation, NoSuchJobError
@@ -238,11 +239,22 @@ class CameraGate:
         """Register unforced requests, (camera id, job id) each, in one round trip; one RequestOutcome each.
 
         Each request is still its own atomic script; only the round trips are shared, which is what a batch of
-        frames from many cameras costs: every wait for Redis is a wait for the API's GIL afterwards."""
+        frames from many cameras costs: every wait for Redis is a wait for the API's GIL afterwards.
+
+        A pipeline checks that its scripts are loaded once, before it sends; a Redis that restarts in between
+        (the batch is retried on the new one) has none, and answers NOSCRIPT: those requests are made again one
+        by one, which loads the script. Only those: the others ran, and asking twice would lose their grant."""
         pipe = self.connection.pipeline(transaction=False)
         for camera_id, job_id in requests:
             self._request(keys=self.keys(camera_id), args=[job_id, self.queued_ttl_s, "0"], client=pipe)
-        return [int(outcome) for outcome in pipe.execute()]
+        outcomes = pipe.execute(raise_on_error=False)
+        for k, outcome in enumerate(outcomes):
+            if isinstance(outcome, NoScriptError):
+                camera_id, job_id = requests[k]
+                outcomes[k] = self._request(keys=self.keys(camera_id), args=[job_id, self.queued_ttl_s, "0"])
+            elif isinstance(outcome, Exception):
+                raise outcome
+        return [int(outcome) for outcome in outcomes]
 
     def start(self, camera_id: str, job_id: str) -> Ticket:
         """Called by the job before it works: take the camera's running slot, and learn whether it was forced."""

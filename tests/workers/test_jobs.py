@@ -73,6 +73,26 @@ def test_a_batch_of_requests_is_one_round_trip_with_an_outcome_each(
     assert gate.state("fresh") == "queued" and gate.finish("running", "j0", "j4") is True
 
 
+def test_a_batch_survives_redis_losing_its_scripts_between_the_check_and_the_send(
+    connection: redis.Redis, redis_dispatcher: RedisDispatcher, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """serve's Redis killed and started again while a post's batch was on its way: the pipeline had found its
+    script loaded on the old Redis, and the retry on the new one answered NOSCRIPT (a 500 in CI). The flush
+    after the pipeline's check forces that interleaving on a real Redis."""
+    gate = redis_dispatcher.gates[FRAMES_QUEUE]
+    assert gate.request("running", "j0") == RequestOutcome.ENQUEUED and gate.start("running", "j0").run
+    check_scripts = redis.client.Pipeline.load_scripts
+
+    def restarted_after_the_check(pipe: redis.client.Pipeline) -> None:
+        check_scripts(pipe)
+        connection.script_flush()
+
+    monkeypatch.setattr(redis.client.Pipeline, "load_scripts", restarted_after_the_check)
+    outcomes = gate.request_many([("idle", "j1"), ("running", "j2")])
+    assert outcomes == [RequestOutcome.ENQUEUED, RequestOutcome.RERUN_SCHEDULED]
+    assert gate.state("idle") == "queued"
+
+
 def test_two_requests_make_one_solve(
     sessions: sessionmaker[Session], redis_dispatcher: RedisDispatcher, connection: redis.Redis
 ) -> None:
