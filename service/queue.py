@@ -35,7 +35,7 @@ import uuid
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NoReturn
 
 import redis
 from redis.backoff import ExponentialBackoff
@@ -90,6 +90,10 @@ JOB_RETRIES = 2
 FAILED_JOB_TTL_S = 7 * 24 * 3600
 
 _REDIS_ERRORS = (redis.ConnectionError, redis.TimeoutError)
+# Redis refusing writes: full (maxmemory reached under noeviction), a replica (READONLY), or unable to persist its
+# snapshot (MISCONF, with stop-writes-on-bgsave-error). The queues are as unavailable as with Redis down. Inside
+# a Lua script the refusal comes back wrapped in the script's error, hence the search in the message.
+_WRITE_REFUSALS = ("OOM", "READONLY", "MISCONF")
 _WAITING = frozenset({JobStatus.QUEUED, JobStatus.DEFERRED, JobStatus.SCHEDULED})
 # A started job is seen through by RQ too: to the end, or, if its process dies, retried by registry maintenance.
 _UNDER_WAY = _WAITING | {JobStatus.STARTED}
@@ -327,6 +331,18 @@ def _job_status(connection: redis.Redis, job_id: str) -> JobStatus | None:
         return None
 
 
+def _raise_unavailable(exc: redis.RedisError) -> NoReturn:
+    """Re-raise a Redis error as DispatchUnavailableError (a 503 for the API, a retry later for the workers) when
+    Redis is away or refuses writes; any other error (a bug) as it is."""
+    message = str(exc)
+    refused = isinstance(exc, redis.exceptions.OutOfMemoryError | redis.exceptions.ReadOnlyError) or any(
+        message.startswith(f"{code} ") or f"-{code} " in message for code in _WRITE_REFUSALS
+    )
+    if isinstance(exc, _REDIS_ERRORS) or refused:
+        raise DispatchUnavailableError(f"job queue unavailable: {exc}") from exc
+    raise exc
+
+
 def _waits(status: bytes | None, queue_position: int | None) -> bool:
     """Whether a job will run without being asked again: waiting in its queue, scheduled or deferred, or started
     (RQ retries a started job whose process died)."""
@@ -390,8 +406,8 @@ class RedisDispatcher:
             ]
             if granted:
                 self.queues[FRAMES_QUEUE].enqueue_many([self._job_data(FRAMES_QUEUE, *job) for job in granted])
-        except _REDIS_ERRORS as exc:
-            raise DispatchUnavailableError(f"job queue unavailable: {exc}") from exc
+        except redis.RedisError as exc:
+            _raise_unavailable(exc)
         return len(granted)
 
     def image_stored(self, camera_id: str, frame_id: uuid.UUID) -> None:
@@ -421,8 +437,8 @@ class RedisDispatcher:
                     meta=meta,
                 )
                 queued += 1
-        except _REDIS_ERRORS as exc:
-            raise DispatchUnavailableError(f"job queue unavailable: {exc}") from exc
+        except redis.RedisError as exc:
+            _raise_unavailable(exc)
         return queued
 
     def deliveries_due(self, due: Iterable[tuple[uuid.UUID, int, datetime | None]]) -> int:
@@ -452,16 +468,16 @@ class RedisDispatcher:
                 else:
                     queue.enqueue_at(at, DELIVER_WEBHOOK_JOB, str(delivery_id), attempt, **options)
                 queued += 1
-        except _REDIS_ERRORS as exc:
-            raise DispatchUnavailableError(f"job queue unavailable: {exc}") from exc
+        except redis.RedisError as exc:
+            _raise_unavailable(exc)
         return queued
 
     def calibration_requested(self, camera_id: str, forced: bool) -> None:
         """Ask for a solve of the camera; deduplicated per camera."""
         try:
             self.request(CALIBRATION_QUEUE, camera_id, forced=forced)
-        except _REDIS_ERRORS as exc:
-            raise DispatchUnavailableError(f"job queue unavailable: {exc}") from exc
+        except redis.RedisError as exc:
+            _raise_unavailable(exc)
 
     def request(self, kind: str, camera_id: str, *, forced: bool = False) -> int:
         """A gated request for a job of `kind` (a queue name) on the camera; returns the RequestOutcome."""
@@ -493,8 +509,8 @@ class RedisDispatcher:
         """`idle`, `queued` or `running` (the calibration status endpoint reports the latter two as calibrating)."""
         try:
             return self.gates[kind].state(camera_id)
-        except _REDIS_ERRORS as exc:
-            raise DispatchUnavailableError(f"job queue unavailable: {exc}") from exc
+        except redis.RedisError as exc:
+            _raise_unavailable(exc)
 
     def calibration_state(self, camera_id: str) -> str:
         return self.state(CALIBRATION_QUEUE, camera_id)
@@ -526,15 +542,15 @@ class RedisDispatcher:
                 if not _waits(status, position):
                     released += self.gates[kind].release_lost(camera_id, job_id)
             return released
-        except _REDIS_ERRORS as exc:
-            raise DispatchUnavailableError(f"job queue unavailable: {exc}") from exc
+        except redis.RedisError as exc:
+            _raise_unavailable(exc)
 
     def forced_calibrations(self, camera_ids: Sequence[str]) -> list[str]:
         """The cameras whose forced solve is still to be completed (see CameraGate.forced_outstanding)."""
         try:
             return self.gates[CALIBRATION_QUEUE].forced_outstanding(camera_ids)
-        except _REDIS_ERRORS as exc:
-            raise DispatchUnavailableError(f"job queue unavailable: {exc}") from exc
+        except redis.RedisError as exc:
+            _raise_unavailable(exc)
 
     def ready(self) -> bool:
         """Whether Redis answers (for /readyz)."""

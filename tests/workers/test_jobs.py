@@ -40,6 +40,28 @@ def test_redis_down_raises_dispatch_unavailable(tmp_path: Path) -> None:
         down.calibration_requested("cam", False)
 
 
+def test_a_full_redis_is_unavailable_not_an_error(connection: redis.Redis, redis_dispatcher: RedisDispatcher) -> None:
+    """maxmemory reached with noeviction: Redis refuses writes (OOM; inside the gate's Lua script, wrapped in the
+    script's error). The API must answer 503 queue-unavailable (the frame is stored), not 500, and the queues work
+    again once Redis has room."""
+    limit = connection.config_get("maxmemory")["maxmemory"]
+    policy = connection.config_get("maxmemory-policy")["maxmemory-policy"]
+    connection.config_set("maxmemory-policy", "noeviction")
+    connection.config_set("maxmemory", "1")
+    try:
+        for ask in (
+            lambda: redis_dispatcher.frames_stored([("cam", uuid.uuid4())]),  # the gate's script
+            lambda: redis_dispatcher.calibration_requested("cam", False),  # the same script, called directly
+            lambda: redis_dispatcher.image_stored("cam", uuid.uuid4()),  # plain commands (OutOfMemoryError)
+        ):
+            with pytest.raises(DispatchUnavailableError, match=r"OOM|maxmemory"):
+                ask()
+    finally:
+        connection.config_set("maxmemory", limit)
+        connection.config_set("maxmemory-policy", policy)
+    assert redis_dispatcher.measure_requested(["cam"]) == 1
+
+
 def test_gate_states_and_forced_flag(connection: redis.Redis) -> None:
     gate = CameraGate(connection, CALIBRATION_QUEUE, queued_ttl_s=60)
     assert gate.request("c", "j1", forced=False) == RequestOutcome.ENQUEUED
