@@ -16,8 +16,27 @@ SAME_PLACE_IOU: Final = 0.8
 person's boxes a fifth of a second apart by less than 0.7."""
 MIN_SIGHTINGS: Final = 3
 FORGET_AFTER_S: Final = 60.0
+KEYPOINT_SAMPLE_S: Final = 10.0
+"""Keypoint frames (a client's own pose model) come at several a second per camera, and a spot needs a sighting
+only within every FORGET_AFTER_S: one keypoint frame per this many seconds of frame time is recorded, so a busy
+camera's spots table holds a few samples of its passers-by instead of one row per person per frame. Six samples per
+FORGET_AFTER_S let a still object be missed by the client's detector five times in a row and stay one spot."""
+# A keypoint person's box from their two centres: a body's width (half of it either side of the segment's middle)
+# and the head above the shoulders, as shares of the segment. Each edge rests on an average of the centres or on
+# the segment's length, so a still body's keypoint jitter of 1-2 % of the segment moves the box less than its own
+# noise (IoU about 0.9 with its first box), while a walker's ankles move a body width a second.
+_CENTRE_BOX_HALF_WIDTH = 0.25
+_CENTRE_BOX_HEAD = 0.25
 
 Box = tuple[float, float, float, float]
+
+
+def centre_box(shoulder_px: tuple[float, float], ankle_px: tuple[float, float]) -> Box:
+    """The box a person posted as keypoints stands in, from their shoulder and ankle centres (no detector box)."""
+    (sx, sy), (ax, ay) = shoulder_px, ankle_px
+    length = float(np.hypot(sx - ax, sy - ay))
+    middle, half = 0.5 * (sx + ax), _CENTRE_BOX_HALF_WIDTH * length
+    return (middle - half, min(sy, ay) - _CENTRE_BOX_HEAD * length, middle + half, max(sy, ay))
 
 
 def match_spots(boxes: Sequence[Box], spots: Sequence[Box] | np.ndarray) -> list[int | None]:

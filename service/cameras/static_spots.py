@@ -10,15 +10,17 @@ there are marked (`STATIC_REASON`): no evidence, no violation. A spot not seen f
 is forgotten (a person who stood still and walked away leaves nothing behind; a detector misses a still object
 for a few frames at most), which also keeps a busy camera's table small: the spots of passers-by last a minute.
 
-Frame time, not the clock: a camera's frames replayed or posted late give the same verdict.
+Frame time, not the clock: a camera's frames replayed or posted late give the same verdict. Keypoint frames (no
+detector box, hundreds a second) meet the same spots in the measuring job, sampled: service.frames.static.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from datetime import datetime, timedelta
+from typing import Any
 
-from sqlalchemy import delete, select
+from sqlalchemy import Row, delete, select
 from sqlalchemy.orm import Session
 
 from service.store.models import StaticSpot
@@ -37,7 +39,8 @@ __all__ = [
 ]
 
 
-def is_static(spot: StaticSpot, static_after_s: float) -> bool:
+def is_static(spot: StaticSpot | Row[Any], static_after_s: float) -> bool:
+    """A spot (or a row of its columns) seen often enough, over long enough."""
     return spot.sightings >= MIN_SIGHTINGS and (spot.last_seen - spot.first_seen).total_seconds() >= static_after_s
 
 

@@ -26,6 +26,7 @@ from service.frames.keypoints import person_from_centres, person_from_keypoints
 from service.frames.measure import FrameComputation, measure_people
 from service.frames.repository import frames_points, pending_frames, record_frame_outcomes
 from service.frames.schemas import PersonObservation
+from service.frames.static import StaticMarks, mark_keypoint_frames, record_static_marks, spots_seen
 from service.geometry import Calibration
 from service.http.problems import ProblemError, field_errors
 from service.observability.logs import JOBS_LOGGER
@@ -163,6 +164,8 @@ def measure_pending(settings: Settings, dispatcher: RedisDispatcher, camera_id: 
 
     Each chunk is first shown to the movement test (service.calibration.moves): when it finds that the camera
     moved, the frames from the move on stay pending for the new epoch's calibration and the rest are measured.
+    Keypoint frames meet the camera's static spots here (service.frames.static): people standing on one raise no
+    violation and leave the evidence, in the chunk's transaction.
     An uncalibrated camera leaves its frames pending: the first calibration asks for them to be measured, so they
     are answered then (recomputed, not dropped). After FRAMES_JOB_BUDGET_S this stops and queues its own re-run,
     so a camera with a backlog shares the workers with the others. Each chunk's results are committed with their
@@ -183,16 +186,22 @@ def measure_pending(settings: Settings, dispatcher: RedisDispatcher, camera_id: 
             frames = pending_frames(session, camera_id, limit=FRAMES_CHUNK)
             people = frames_points(session, [frame.id for frame in frames])
             stored_test = movement_state(session, camera_id) if frames else None
+            keypoint_frames = any(frame.source == "keypoints" for frame in frames)
+            spots = spots_seen(session, camera_id, settings.static_after_s) if keypoint_frames else None
         watched = moves.watch(calibration, stored_test, frames, people) if frames else None
         moved_at = None if watched is None else watched.moved_at
         measured = [frame for frame in frames if moved_at is None or frame.timestamp < moved_at]
+        marks = StaticMarks() if spots is None else mark_keypoint_frames(spots, measured, people)
         geometry = _geometry(calibration, camera) if measured else None
-        outcomes = [frame_outcome(frame, people.get(frame.id, []), camera, calibration, geometry) for frame in measured]
+        outcomes = [
+            frame_outcome(frame, marks.people(frame.id, people.get(frame.id, [])), camera, calibration, geometry)
+            for frame in measured
+        ]
         if watched is not None:
             client_ids = {frame.id: frame.client_frame_id for frame in measured}
-
             keep_watch = partial(moves.keep_watch, camera=camera, calibration=calibration, watched=watched)
-            outcomes, deliveries = store_outcomes(settings, camera, outcomes, client_ids, keep_watch)
+            also = partial(_chunk_state, camera=camera, marks=marks, settings=settings, keep_watch=keep_watch)
+            outcomes, deliveries = store_outcomes(settings, camera, outcomes, client_ids, also)
             announce(dispatcher, deliveries)
         for frame, answered in zip(measured, outcomes, strict=True):
             _log_measured(frame, answered)
@@ -207,6 +216,19 @@ def measure_pending(settings: Settings, dispatcher: RedisDispatcher, camera_id: 
     if _solve_due(settings, camera):
         dispatcher.calibration_requested(camera_id, False)
     return outcome
+
+
+def _chunk_state(
+    session: Session,
+    *,
+    camera: Camera,
+    marks: StaticMarks,
+    settings: Settings,
+    keep_watch: Callable[[Session], list[uuid.UUID]],
+) -> list[uuid.UUID]:
+    """What a chunk's transaction stores beside its results: the static spots' share, then the movement test's."""
+    record_static_marks(session, camera, marks, settings.static_after_s)
+    return keep_watch(session)
 
 
 def _solve_due(settings: Settings, camera: Camera) -> bool:

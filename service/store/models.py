@@ -487,9 +487,10 @@ class ViolationEvent(Base):
 class StaticSpot(Base):
     """Where a camera's detector keeps finding a "person" that never moves (a mannequin, a poster, a statue).
 
-    Each image frame's boxes are matched to the camera's spots (service.cameras.static_spots); a spot seen, without
-    moving, for `static_after_s` of frame time is static: the people found there give no evidence and raise no
-    violation. A spot unseen for a while is forgotten, so a person who stood still and left leaves nothing behind.
+    Each image frame's boxes, and a sample of its keypoint frames' (service.frames.static), are matched to the
+    camera's spots (service.cameras.static_spots); a spot seen, without moving, for `static_after_s` of frame time
+    is static: the people found there give no evidence and raise no violation. A spot unseen for a while is
+    forgotten, so a person who stood still and left leaves nothing behind.
     """
 
     __tablename__ = "static_spots"
