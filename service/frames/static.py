@@ -51,6 +51,8 @@ class StaticMarks:
     def people(self, frame_id: uuid.UUID, people: Sequence[Any]) -> list[Any]:
         """A frame's stored people, those at a static spot carrying the static reason (what measuring reads)."""
         marked = set(self.static.get(frame_id, ()))
+        if not marked:
+            return list(people)
         return [_Static.of(person) if index in marked else person for index, person in enumerate(people)]
 
 

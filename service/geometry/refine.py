@@ -25,7 +25,10 @@ from .model import CameraBatch, Layout, Observations, Priors, unpack
 from .vec import FloatArray
 
 _MAX_ITERATIONS = 60
-_CONVERGED_DECREMENT = 1e-16
+# Converged once a step is 1e-3 of the posterior's sigma (the Newton decrement is its square). Against a 1e-8-sigma
+# test, on 12 realistic-simulator cameras of 2 000 observations: f moves by at most 5e-5 relative (~2e-3 of its
+# sigma), the normal by 2e-5 rad, and half the iterations go (9.2 -> 4.8 per fit, 77 -> 55 ms of CPU per solve).
+_CONVERGED_DECREMENT = 1e-6
 _STEP_THETA = 1e-5
 _STEP_PERSON = 1e-5
 
@@ -277,8 +280,8 @@ def fit_map(
             new_cost = _cost(problem, *candidate)
             if np.isfinite(new_cost) and new_cost <= cost:
                 # Converged once the step is far below the parameters' own uncertainty (the Newton
-                # decrement in units of the posterior: 1e-16 is a step of 1e-8 sigma), or when no step
-                # lowers the cost (floating-point noise).
+                # decrement in units of the posterior: _CONVERGED_DECREMENT), or when no step lowers the cost
+                # (floating-point noise).
                 d = candidate[0] - theta
                 decrement = float(d @ red.s @ d)
                 theta, ankles, person = candidate

@@ -22,6 +22,7 @@ from service.queue import CALIBRATION_QUEUE, RedisDispatcher
 from service.settings import get_settings
 from service.store.models import Camera, Frame, Observation, StaticSpot
 from tests.support.jobs import IMAGE_SIZE, frame_statuses, run_jobs, simulated_camera, store_frames
+from tests.support.jobs import Camera as SimulatedCamera
 
 STATIC_AFTER_S = 60.0
 START = datetime(2026, 1, 1, 1, tzinfo=UTC)
@@ -67,14 +68,22 @@ def _results(sessions: sessionmaker[Session]) -> list[dict]:
         return [json.loads(row.result) if isinstance(row.result, str) else row.result for row in rows]
 
 
-def test_a_mannequin_in_keypoint_frames_turns_static_gives_no_evidence_and_no_violation(
-    sessions: sessionmaker[Session], redis_dispatcher: RedisDispatcher, connection: redis.Redis, short_static: float
-) -> None:
+def _calibrated(
+    sessions: sessionmaker[Session], redis_dispatcher: RedisDispatcher, connection: redis.Redis
+) -> SimulatedCamera:
+    """cam-1 calibrated from 40 frames of 10 people (graded above unreliable, so it raises violations)."""
     camera = simulated_camera(sessions, people=800)
     store_frames(sessions, camera, 40)
     redis_dispatcher.request(CALIBRATION_QUEUE, camera.camera_id)
     run_jobs(connection)
     assert frame_statuses(sessions) == {"done": 40}
+    return camera
+
+
+def test_a_mannequin_in_keypoint_frames_turns_static_gives_no_evidence_and_no_violation(
+    sessions: sessionmaker[Session], redis_dispatcher: RedisDispatcher, connection: redis.Redis, short_static: float
+) -> None:
+    camera = _calibrated(sessions, redis_dispatcher, connection)
 
     mannequin = (camera.scene.tops_px[-1], camera.scene.bottoms_px[-1])
     length = float(np.linalg.norm(mannequin[0] - mannequin[1]))
@@ -132,10 +141,7 @@ def test_a_mannequin_in_keypoint_frames_turns_static_gives_no_evidence_and_no_vi
 def test_only_one_keypoint_frame_per_sample_interval_is_a_sighting(
     sessions: sessionmaker[Session], redis_dispatcher: RedisDispatcher, connection: redis.Redis, short_static: float
 ) -> None:
-    camera = simulated_camera(sessions, people=600)
-    store_frames(sessions, camera, 8)
-    redis_dispatcher.request(CALIBRATION_QUEUE, camera.camera_id)
-    run_jobs(connection)
+    camera = _calibrated(sessions, redis_dispatcher, connection)
     mannequin = (camera.scene.tops_px[-1], camera.scene.bottoms_px[-1])
     for k in range(25):  # 5 frames a second for 5 s: one sample
         _post(sessions, START + timedelta(seconds=0.2 * k), [mannequin])
