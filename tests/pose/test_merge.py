@@ -57,6 +57,39 @@ def test_a_loose_box_around_a_group_is_dropped_and_its_people_kept() -> None:
     assert len(merged) == 3 and 0.31 not in scores.tolist()
 
 
+def test_a_loose_box_over_two_people_votes_for_the_one_it_fits() -> None:
+    """Town Centre frame 12: a man behind a sign board (0.25 in one region) and a man walking past above him
+    (0.65); another region's loose box spans both (IoU 0.63 with the first, 0.51 with the second). It is the
+    hidden man's second vote (1 - 0.75^2 = 0.44 >= 0.3), not a vote for the confident man beside him."""
+    hidden = [1803.0, 279.0, 1881.0, 492.0]
+    walking = [1809.0, 173.0, 1882.0, 343.0]
+    loose = [1805.0, 173.0, 1882.0, 487.0]
+    merged, fused = merge_boxes(
+        np.array([walking, hidden, loose]), np.array([0.65, 0.25, 0.25]), np.array([0, 0, 1]), threshold=0.3
+    )
+    assert len(merged) == 2
+    np.testing.assert_allclose(merged[1], hidden)
+    np.testing.assert_allclose(fused, [0.65, 1 - 0.75**2])
+
+
+def test_a_hidden_persons_whole_body_vote_gives_their_box_its_extent() -> None:
+    """Town Centre frame 48: the woman behind the woman in red is boxed to her upper body (0.47) and, in two
+    regions, to her whole body down to her hidden feet (0.33, 0.30; IoU >= 0.5 with the upper body, same top).
+    One person, fused score, with the whole body's extent (the feet the geometry measures from); a box of about
+    the same extent (a jitter) does not move the kept box."""
+    upper = [1697.0, 727.0, 1776.0, 896.0]
+    whole = [1695.0, 725.0, 1780.0, 1000.0]
+    merged, fused = merge_boxes(
+        np.array([upper, whole, whole]), np.array([0.47, 0.33, 0.30]), np.array([0, 1, 2]), threshold=0.3
+    )
+    assert len(merged) == 1
+    np.testing.assert_allclose(merged[0], whole)
+    np.testing.assert_allclose(fused, [1 - 0.53 * 0.67 * 0.70])
+    jitter = [1695.0, 725.0, 1778.0, 905.0]
+    merged, _ = merge_boxes(np.array([upper, jitter]), np.array([0.47, 0.33]), np.array([0, 1]))
+    np.testing.assert_allclose(merged[0], upper)
+
+
 boxes = st.tuples(
     st.floats(0, 1800), st.floats(0, 1000), st.floats(8, 200), st.floats(16, 400), st.floats(0.3, 1.0)
 ).map(lambda t: (t[0], t[1], t[0] + t[2], t[1] + t[3], t[4]))
