@@ -317,6 +317,6 @@ def _polish(tops: FloatArray, bottoms: FloatArray, grid: FloatArray, cost: Float
         lambda k: float(sampson_cost(tops, bottoms, k)[0]),
         bounds=(lo, hi),
         method="bounded",
-        options={"xatol": 1e-14 * step},
+        options={"xatol": 1e-6 * step},
     )
     return float(found.x) if found.fun <= cost[i] else float(grid[i])
