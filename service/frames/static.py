@@ -76,9 +76,10 @@ def spots_seen(session: Session, camera_id: str, static_after_s: float) -> Spots
     static, as plain rows, and the latest sighting (passers-by's spots, most of the table, are seen once)."""
     spot = StaticSpot.__table__.c
     box = (spot.left_px, spot.top_px, spot.right_px, spot.bottom_px)
-    columns = (*box, spot.first_seen, spot.last_seen, spot.sightings)
     candidates = session.execute(
-        select(*columns).where(spot.camera_id == camera_id, spot.sightings >= MIN_SIGHTINGS)
+        select(*box, spot.first_seen, spot.last_seen, spot.sightings).where(
+            spot.camera_id == camera_id, spot.sightings >= MIN_SIGHTINGS
+        )
     ).all()
     return SpotsSeen(
         [(s.left_px, s.top_px, s.right_px, s.bottom_px) for s in candidates if is_static(s, static_after_s)],
@@ -99,6 +100,9 @@ def mark_keypoint_frames(
     marks = StaticMarks()
     last = spots.last_sighting
     for frame in sorted((f for f in frames if f.source == "keypoints"), key=lambda f: f.timestamp):
+        due = last is None or (frame.timestamp - last).total_seconds() >= KEYPOINT_SAMPLE_S
+        if not (due or spots.static_boxes):
+            continue  # most frames of a camera without static spots: nothing to match, nothing to record
         boxes = [_box(person) for person in people.get(frame.id, [])]
         present = [(index, box) for index, box in enumerate(boxes) if box is not None]
         if spots.static_boxes and present:
@@ -106,7 +110,7 @@ def mark_keypoint_frames(
             static = [index for (index, _), match in zip(present, matches, strict=True) if match is not None]
             if static:
                 marks.static[frame.id] = static
-        if present and (last is None or (frame.timestamp - last).total_seconds() >= KEYPOINT_SAMPLE_S):
+        if present and due:
             marks.samples.append((frame.timestamp, boxes))
             last = frame.timestamp
     return marks
