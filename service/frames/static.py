@@ -48,11 +48,11 @@ class StaticMarks:
     samples: list[tuple[datetime, list[Box | None]]] = field(default_factory=list)
     """The frames whose boxes are recorded as sightings: (frame time, a box per person or None)."""
 
-    def people(self, frame_id: uuid.UUID, people: Sequence[Any]) -> list[Any]:
+    def people(self, frame_id: uuid.UUID, people: Sequence[Any]) -> Sequence[Any]:
         """A frame's stored people, those at a static spot carrying the static reason (what measuring reads)."""
         marked = set(self.static.get(frame_id, ()))
         if not marked:
-            return list(people)
+            return people
         return [_Static.of(person) if index in marked else person for index, person in enumerate(people)]
 
 
