@@ -3,6 +3,8 @@ where it is a ground contact, with the cue's wider sigma, and are never calibrat
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import pytest
 
 from service.domain import PersonIn
@@ -45,25 +47,50 @@ def test_a_box_cut_by_the_frame_or_by_another_person_is_no_contact(
 
 
 def test_unread_people_with_a_clear_box_are_placed_from_it_and_are_never_evidence() -> None:
-    unread = PersonIn(shoulder_px=None, ankle_px=None, unusable_reason="shoulders not confidently seen", box_px=BOX)
+    unread = PersonIn(
+        shoulder_px=None,
+        ankle_px=None,
+        unusable_reason="shoulders not confidently seen",
+        box_px=BOX,
+        detection_score=0.8,
+    )
     hidden = PARTIAL_REASON
     behind = PersonIn(
-        shoulder_px=(1130.0, 420.0), ankle_px=None, unusable_reason=hidden, box_px=(1100.0, 380.0, 1160.0, 600.0)
+        shoulder_px=(1130.0, 420.0),
+        ankle_px=None,
+        unusable_reason=hidden,
+        box_px=(1100.0, 380.0, 1160.0, 600.0),
+        detection_score=0.8,
     )
-    in_front = PersonIn(shoulder_px=(1135.0, 480.0), ankle_px=(1135.0, 700.0), box_px=(1090.0, 440.0, 1180.0, 720.0))
+    in_front = PersonIn(
+        shoulder_px=(1135.0, 480.0),
+        ankle_px=(1135.0, 700.0),
+        box_px=(1090.0, 440.0, 1180.0, 720.0),
+        detection_score=0.9,
+    )
     # Shoulders low in the box: the box ends at a wall or a table, not at the feet.
     walled = PersonIn(
-        shoulder_px=(1500.0, 520.0), ankle_px=None, unusable_reason=hidden, box_px=(1470.0, 480.0, 1530.0, 600.0)
+        shoulder_px=(1500.0, 520.0),
+        ankle_px=None,
+        unusable_reason=hidden,
+        box_px=(1470.0, 480.0, 1530.0, 600.0),
+        detection_score=0.8,
     )
     repeat = PersonIn(
-        shoulder_px=None, ankle_px=None, unusable_reason="same pose as person 2", box_px=(300.0, 300.0, 360.0, 500.0)
+        shoulder_px=None,
+        ankle_px=None,
+        unusable_reason="same pose as person 2",
+        box_px=(300.0, 300.0, 360.0, 500.0),
+        detection_score=0.8,
     )
-    placed = place_from_boxes([unread, behind, in_front, walled, repeat], IMAGE_SIZE)
+    # A box the detector doubts (score 0.4): on Town Centre such boxes are rarely pedestrians.
+    doubtful = replace(unread, box_px=(1300.0, 400.0, 1380.0, 640.0), detection_score=0.4)
+    placed = place_from_boxes([unread, behind, in_front, walled, repeat, doubtful], IMAGE_SIZE)
     contact = (940.0, 640.0 - BOX_ANKLE_OFFSET * 240.0)
     assert placed[0].ankle_px == pytest.approx(contact) and placed[0].unusable_reason == BOX_REASON
     assert placed[1] == behind  # its box bottom lies inside the box of the person in front: shoulders only
     assert placed[2] == in_front  # trusted ankles are kept
-    assert placed[3] == walled and placed[4] == repeat
+    assert placed[3] == walled and placed[4] == repeat and placed[5] == doubtful
     assert all(person.unusable_reason is not None for person in placed[:2] + placed[3:])
 
 
