@@ -166,15 +166,23 @@ def box_bottom_problem(
 ) -> str | None:
     """Why a detector box's bottom centre is not a ground contact, or None when it is (see `place_from_boxes`).
 
-    Not a contact: a box cut by the frame (its bottom at the bottom edge, or a side at a side edge: the detector
-    boxes what is in view), a bottom centre inside another person's box (the box of a person behind someone ends
-    where they disappear, not at their feet; unlike a keypoint, the whole box is an occluder here: a contact that
-    might be a guess places nobody), or a box mostly inside another one (a second box of one person).
+    Not a contact: a box cut by the frame (the detector boxes what is in view: at the bottom edge the feet are
+    out of view, at a side the centre moves, and at the top nothing says the box holds a person rather than the
+    bicycle or the legs below one: on Town Centre 2 % of the top-cut boxes without trusted shoulders match an
+    annotated pedestrian, 83 % of the whole ones), a bottom centre inside another person's box (the box of a
+    person behind someone ends where they disappear, not at their feet; unlike a keypoint, the whole box is an
+    occluder here: a contact that might be a guess places nobody), or a box mostly inside another one (a second
+    box of one person).
     """
     left, top, right, bottom = (float(v) for v in box_px)
     width_px, height_px = image_size_px
     margin_x_px, margin_y_px = BORDER_FRACTION * width_px, BORDER_FRACTION * height_px
-    if bottom >= height_px - margin_y_px or left <= margin_x_px or right >= width_px - margin_x_px:
+    if (
+        top <= margin_y_px
+        or bottom >= height_px - margin_y_px
+        or left <= margin_x_px
+        or right >= width_px - margin_x_px
+    ):
         return "box cut by the image border"
     x_px, area = (left + right) / 2.0, max(right - left, 1e-9) * max(bottom - top, 1e-9)
     for other in others_px:

@@ -34,6 +34,7 @@ def test_a_box_whose_bottom_is_clear_is_a_contact() -> None:
     [
         ((900.0, 700.0, 980.0, 1079.0), [], "box cut by the image border"),  # legs below the frame
         ((2.0, 400.0, 80.0, 640.0), [], "box cut by the image border"),  # half outside on the left
+        ((900.0, 0.0, 950.0, 100.0), [], "box cut by the image border"),  # head out of view: a person, or a bicycle?
         # Behind someone whose box reaches lower: the box ends where the person disappears, not at their feet.
         (BOX, [(880.0, 450.0, 990.0, 760.0)], "box bottom inside another person's box"),
         # A second box of one person (their legs boxed apart), its bottom on the other's bottom edge.
