@@ -12,19 +12,23 @@ are put on the street by the same camera:
 
 The offsets are reported as fractions of the box height (bias and spread), the ground errors in metres by person
 height in pixels. Run: `python -m bench.placement RUN/frames.jsonl` (needs the shared data); with `pairs` after it,
-the run's pair distances with a box-placed person against the same pixels under the published camera.
+the run's pair distances with a box-placed person against the same pixels under the published camera; with
+`annotation`, the share of the run's placed people that are annotated pedestrians (upstream body boxes).
 """
 
 from __future__ import annotations
 
 import json
 import sys
+from collections import defaultdict
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
-from bench.towncentre import load_calibration
+from bench.towncentre import Annotation, load_annotations, load_calibration
 from service.frames.keypoints import box_bottom_problem
+from service.pose.merge import iou_matrix
 
 CALIBRATION = Path(__file__).resolve().parents[1] / "../shared/data/oxford_town_centre/TownCentre-calibration-ci.txt"
 HEIGHT_PRIOR_M = 1.32
@@ -177,8 +181,47 @@ def pairs_report(frames_jsonl: Path, within_m: float = 30.0) -> str:
     return "\n".join(lines)
 
 
+def _annotated(annotations: dict[int, list[Annotation]], frame: int, box: Sequence[float], lag_frames: int = 5) -> bool:
+    """Whether a detection is an annotated pedestrian: IoU >= 0.5 with their body box in frames n-5..n (the
+    annotation lags the clip, bench/recall.py), or their head's centre in the top 30 % of the detection."""
+    left, top, right, bottom = box
+    for number in range(frame - lag_frames, frame + 1):
+        for person in annotations.get(number, []):
+            if person.body_xyxy is not None and iou_matrix(np.array([box]), np.array([person.body_xyxy]))[0, 0] >= 0.5:
+                return True
+            if person.head_xyxy is not None:
+                x, y = (person.head_xyxy[0] + person.head_xyxy[2]) / 2, (person.head_xyxy[1] + person.head_xyxy[3]) / 2
+                if left <= x <= right and top - 10 <= y <= top + 0.3 * (bottom - top):
+                    return True
+    return False
+
+
+def annotation_report(frames_jsonl: Path) -> str:
+    """Share of the run's placed people that are annotated pedestrians, by placement and by what vouches for them."""
+    annotations = load_annotations(CALIBRATION.parent / "TownCentre-groundtruth.top")
+    counts: dict[tuple[str, ...], list[int]] = defaultdict(lambda: [0, 0])
+    for line in frames_jsonl.read_text().splitlines():
+        frame = json.loads(line)
+        for person in frame["people"]:
+            reason = person["unusable_reason"] or ""
+            if person["placed_from"] is None or reason.startswith("static") or person["box_px"] is None:
+                continue
+            box = person["box_px"]
+            key = (
+                person["placed_from"],
+                "shoulders trusted" if person["shoulder_px"] is not None else "no shoulders",
+                "score >= 0.5" if (person["detection_score"] or 0.0) >= 0.5 else "score < 0.5",
+                "top cut" if box[1] <= 10.8 else "whole",
+            )
+            counts[key][0] += 1
+            counts[key][1] += _annotated(annotations, frame["frame"], box)
+    lines = ["placed from | shoulders | score | box top | n | annotated"]
+    for key, (n, hits) in sorted(counts.items()):
+        lines.append(f"{' | '.join(key)} | {n} | {hits / n:.0%}")
+    return "\n".join(lines)
+
+
 if __name__ == "__main__":
-    if len(sys.argv) > 2 and sys.argv[2] == "pairs":
-        print(pairs_report(Path(sys.argv[1])))
-    else:
-        print(report(Path(sys.argv[1])))
+    mode = sys.argv[2] if len(sys.argv) > 2 else "cues"
+    reports = {"cues": report, "pairs": pairs_report, "annotation": annotation_report}
+    print(reports[mode](Path(sys.argv[1])))

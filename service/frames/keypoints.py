@@ -83,8 +83,8 @@ BOX_ANKLE_OFFSET = 0.10
 # still placed, from their shoulders.
 BOX_MIN_SHOULDER_DROP = 0.78
 # Without trusted shoulders a box is only as good as the detector's belief that it holds a person: on Town Centre,
-# of such box-placed detections under this score 5 % match an annotated pedestrian (83 % at or above it where the
-# annotation covers the street; with trusted shoulders 62 % under it, 96 % above).
+# of such whole box-placed detections under this score 10 % match an annotated pedestrian (68 of them; 83 % at or
+# above it; with trusted shoulders 62 % under it, 96 % above).
 BOX_MIN_SCORE = 0.5
 SEATED_REASON = "seated or crouching (legs seen but folded): a position, not calibration evidence"
 PARTIAL_REASON = "lower body not seen (hidden or out of view): placed from the shoulders, not calibration evidence"
@@ -169,8 +169,7 @@ def box_bottom_problem(
 
     Not a contact: a box cut by the frame (the detector boxes what is in view: at the bottom edge the feet are
     out of view, at a side the centre moves, and at the top nothing says the box holds a person rather than the
-    bicycle or the legs below one: on Town Centre 2 % of the top-cut boxes without trusted shoulders match an
-    annotated pedestrian, 83 % of the whole ones), a bottom centre inside another person's box (the box of a
+    bicycle beside one, as on Town Centre frame 88), a bottom centre inside another person's box (the box of a
     person behind someone ends where they disappear, not at their feet; unlike a keypoint, the whole box is an
     occluder here: a contact that might be a guess places nobody), or a box mostly inside another one (a second
     box of one person).
