@@ -264,9 +264,9 @@ def place_from_boxes(people: Sequence[PersonIn], image_size_px: tuple[int, int])
     it (`box_bottom_problem`): it becomes their ankle point, moved up by `BOX_ANKLE_OFFSET` of the box height
     (the feet reach below the ankle centre), with `BOX_REASON`, so that they are measured, with the wider sigma
     of the cue (service/frames/measure.py), and never calibrated on. On Town Centre the box bottom places a
-    person within 0.16 m of their ankles (median; shoulders at the height prior: 0.17-0.48 m), so it replaces the
-    shoulders too, unless the shoulders sit low in the box (`BOX_MIN_SHOULDER_DROP`: the box ends at a wall or
-    a table, not at the feet). A repeated pose (a phantom of one person), a box the detector doubts with
+    person 0.15-0.17 m from their ankles (median by size; the shoulders at the height prior: 0.17-0.28 m), so it
+    replaces the shoulders too, unless the shoulders sit low in the box (`BOX_MIN_SHOULDER_DROP`: the box ends
+    at a wall or a table, not at the feet). A repeated pose (a phantom of one person), a box the detector doubts with
     nothing the pose vouches for (`BOX_MIN_SCORE`) and a box that is not a contact keep what they had:
     shoulders, or nothing. Measured on Town Centre: docs/benchmarks/pose.md, "Placing the people the pose
     cannot read".
