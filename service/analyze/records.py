@@ -120,7 +120,9 @@ class PersonRecord(BaseModel):
         description="For usable people: `inlier` (the solved camera explains them), `outlier` (rejected by the "
         "solve), `unused` (a repeat of someone standing still, or left out of a capped sample)."
     )
-    placed_from: Literal["ankles", "shoulders"] | None
+    placed_from: Literal["ankles", "box", "shoulders"] | None = Field(
+        description="`ankles`, `box` (the detector box's bottom: the pose was not read) or `shoulders`."
+    )
     ground_m: tuple[float, float] | None
     point_m: tuple[float, float, float] | None = Field(description="The ground point in the camera frame.")
     nearest_index: int | None = Field(description="The nearest placed person in this frame.")

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from service.domain import PersonIn
-from service.frames.keypoints import STATIC_REASON, people_from_detections
+from service.frames.keypoints import as_static, people_from_detections
 from service.frames.measure import measure_people
 from service.geometry import Calibration, SolveOptions
 from service.geometry.evidence import EvidenceSolve, solve_evidence
@@ -91,10 +91,7 @@ def mark_static(frames: Sequence[AnalyzedFrame], static_after_s: float) -> list[
     return [
         replace(
             frame,
-            people=[
-                replace(person, unusable_reason=STATIC_REASON) if still else person
-                for person, still in zip(frame.people, marks, strict=True)
-            ],
+            people=[as_static(person) if still else person for person, still in zip(frame.people, marks, strict=True)],
         )
         for frame, marks in zip(frames, static, strict=True)
     ]

@@ -16,7 +16,6 @@ from __future__ import annotations
 import logging
 import time
 import uuid
-from dataclasses import replace
 from typing import TYPE_CHECKING
 
 from service.calibration.camera_model import calibration_from_version
@@ -25,7 +24,7 @@ from service.cameras.static_spots import observe
 from service.domain import DONE, FAILED, GONE, SKIPPED, PersonIn
 from service.frames.images import ImageError, decode
 from service.frames.ingest import record_detection_failure, record_detections
-from service.frames.keypoints import STATIC_REASON, people_from_detections
+from service.frames.keypoints import as_static, people_from_detections
 from service.frames.repository import frame_image
 from service.observability.logs import JOBS_LOGGER, log_context
 from service.observability.metrics import POSE_INFERENCE
@@ -90,10 +89,7 @@ def _mark_static(
     if frame is None or frame.status != "detecting":
         return people  # a duplicate run: record_detections stores nothing, so no sighting is counted twice
     static = observe(session, camera_id, frame.timestamp, [person.box_px for person in people], static_after_s)
-    return [
-        replace(person, unusable_reason=STATIC_REASON) if still else person
-        for person, still in zip(people, static, strict=True)
-    ]
+    return [as_static(person) if still else person for person, still in zip(people, static, strict=True)]
 
 
 def _guide(session: Session, camera: Camera) -> Calibration | None:

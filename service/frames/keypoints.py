@@ -38,6 +38,10 @@ detection's pose (median distance between their keypoints under `DUPLICATE_POSE_
 the shoulder or ankle centre that would place them that close to the other's: two boxes of a person cut by the
 frame's edge agree on little but their shoulders): the detection is kept, with the reason, but is neither
 evidence nor placed.
+
+A person the pose cannot put on the ground (no trusted ankles) still counts in distances and violations, so
+`people_from_detections` then places them from their detector box's bottom where it is a ground contact
+(`place_from_boxes`, `box_bottom_problem`): measured, with a wider sigma, never calibration evidence.
 """
 
 from __future__ import annotations
@@ -66,8 +70,25 @@ MIN_SEGMENT_PX = 8.0
 # pixels (~1-2 % of their height); two people pressed together differ by a shoulder width (~25 %).
 DUPLICATE_POSE_FRACTION = 0.05
 MIN_SHARED_KEYPOINTS = 4
+# Box-bottom placement (`place_from_boxes`): the share of a box inside another that makes it a second box of one
+# person.
+BOX_INSIDE_FRACTION = 0.8
+# How far above the box bottom the ankle centre lies, as a fraction of the box height (Town Centre, measured on
+# the people placed from trusted ankles: docs/benchmarks/pose.md).
+BOX_ANKLE_OFFSET = 0.10
+# Where the shoulders are seen, a box that is a whole person holds them in its top part: shoulder centre to box
+# bottom at least this fraction of the box height (0.81 median, 0.78 at the 5th percentile, 0.75 at the 1st for the
+# people with trusted ankles on Town Centre; a box cut at the hips by a wall or a table: ~0.5; frame 54's woman in
+# red, legs hidden by the low wall and the frame's edge: 0.72-0.76 by detector pass). A whole person below it is
+# still placed, from their shoulders.
+BOX_MIN_SHOULDER_DROP = 0.78
+# Without trusted shoulders a box is only as good as the detector's belief that it holds a person: on Town Centre,
+# of such whole box-placed detections under this score 10 % match an annotated pedestrian (68 of them; 83 % at or
+# above it; with trusted shoulders 62 % under it, 96 % above).
+BOX_MIN_SCORE = 0.5
 SEATED_REASON = "seated or crouching (legs seen but folded): a position, not calibration evidence"
 PARTIAL_REASON = "lower body not seen (hidden or out of view): placed from the shoulders, not calibration evidence"
+BOX_REASON = "pose not read: placed from the detector box's bottom (a clear ground contact), a position, not evidence"
 STATIC_REASON = "static: found at a spot where nothing has moved for a long time (a mannequin, a poster, a statue)"
 
 Point = tuple[float, float]
@@ -141,6 +162,49 @@ def person_from_detection(person: DetectedPerson, image_size_px: tuple[int, int]
     return replace(row, box_px=tuple(float(v) for v in person.box_xyxy_px), detection_score=person.detection_score)
 
 
+def box_bottom_problem(
+    box_px: Sequence[float], others_px: Sequence[Sequence[float]], image_size_px: tuple[int, int]
+) -> str | None:
+    """Why a detector box's bottom centre is not a ground contact, or None when it is (see `place_from_boxes`).
+
+    Not a contact: a box cut by the frame (the detector boxes what is in view: at the bottom edge the feet are
+    out of view, at a side the centre moves, and at the top nothing says the box holds a person rather than the
+    bicycle beside one, as on Town Centre frame 88), a bottom centre inside another person's box (the box of a
+    person behind someone ends where they disappear, not at their feet; unlike a keypoint, the whole box is an
+    occluder here: a contact that might be a guess places nobody), or a box mostly inside another one (a second
+    box of one person).
+    """
+    left, top, right, bottom = (float(v) for v in box_px)
+    width_px, height_px = image_size_px
+    margin_x_px, margin_y_px = BORDER_FRACTION * width_px, BORDER_FRACTION * height_px
+    if (
+        top <= margin_y_px
+        or bottom >= height_px - margin_y_px
+        or left <= margin_x_px
+        or right >= width_px - margin_x_px
+    ):
+        return "box cut by the image border"
+    x_px, area = (left + right) / 2.0, max(right - left, 1e-9) * max(bottom - top, 1e-9)
+    for other in others_px:
+        o_left, o_top, o_right, o_bottom = (float(v) for v in other)
+        if o_left < x_px < o_right and o_top < bottom < o_bottom:
+            return "box bottom inside another person's box"
+        overlap_w = min(right, o_right) - max(left, o_left)
+        overlap_h = min(bottom, o_bottom) - max(top, o_top)
+        if overlap_w > 0 and overlap_h > 0 and overlap_w * overlap_h > BOX_INSIDE_FRACTION * area:
+            return "box mostly inside another person's box"
+    return None
+
+
+def as_static(person: PersonIn) -> PersonIn:
+    """The person flagged static (found at a static spot: no evidence, no violation); one placed from their box
+    keeps saying so after the static reason, so that measuring still gives them the box's placement and sigma."""
+    reason = STATIC_REASON
+    if (person.unusable_reason or "").startswith(BOX_REASON):
+        reason = f"{STATIC_REASON}; {BOX_REASON}"
+    return replace(person, unusable_reason=reason)
+
+
 def person_from_centres(shoulder: Point | None, ankle: Point | None, image_size_px: tuple[int, int]) -> PersonIn:
     """A person posted as explicit centres (ankle None when hidden) as the store's row, with the verdict."""
     shoulder_px = None if shoulder is None else (float(shoulder[0]), float(shoulder[1]))
@@ -188,4 +252,45 @@ def people_from_detections(found: Sequence[DetectedPerson], image_size_px: tuple
             ankle_px=None,
             unusable_reason=f"same pose as person {original} (a repeated detection, or a neighbour's pose)",
         )
-    return people
+    return place_from_boxes(people, image_size_px)
+
+
+def place_from_boxes(people: Sequence[PersonIn], image_size_px: tuple[int, int]) -> list[PersonIn]:
+    """People the pose could not put on the ground, placed from their detector box's bottom where it is a contact.
+
+    A person without trusted ankles (shoulders not read, legs hidden or folded out of sight) is otherwise placed
+    from their shoulders with a height prior, or not at all, and an unplaced person never takes part in a
+    violation. The box's bottom centre is where a standing or seated person meets the ground when nothing cuts
+    it (`box_bottom_problem`): it becomes their ankle point, moved up by `BOX_ANKLE_OFFSET` of the box height
+    (the feet reach below the ankle centre), with `BOX_REASON`, so that they are measured, with the wider sigma
+    of the cue (service/frames/measure.py), and never calibrated on. On Town Centre the box bottom places a
+    person 0.15-0.17 m from their ankles (median by size; the shoulders at the height prior: 0.17-0.28 m), so it
+    replaces the shoulders too, unless the shoulders sit low in the box (`BOX_MIN_SHOULDER_DROP`: the box ends
+    at a wall or a table, not at the feet). A repeated pose (a phantom of one person), a box the detector doubts with
+    nothing the pose vouches for (`BOX_MIN_SCORE`) and a box that is not a contact keep what they had:
+    shoulders, or nothing. Measured on Town Centre: docs/benchmarks/pose.md, "Placing the people the pose
+    cannot read".
+    """
+    boxes = [person.box_px for person in people]
+    placed = []
+    for index, person in enumerate(people):
+        box = person.box_px
+        reason = person.unusable_reason or ""
+        if (
+            person.ankle_px is not None
+            or box is None
+            or reason.startswith("same pose as person")
+            or (person.shoulder_px is None and (person.detection_score or 0.0) < BOX_MIN_SCORE)
+        ):
+            placed.append(person)
+            continue
+        others = [other for j, other in enumerate(boxes) if j != index and other is not None]
+        left, top, right, bottom = box
+        shoulder = person.shoulder_px
+        cut = shoulder is not None and bottom - shoulder[1] < BOX_MIN_SHOULDER_DROP * (bottom - top)
+        if cut or box_bottom_problem(box, others, image_size_px) is not None:
+            placed.append(person)
+            continue
+        contact = ((left + right) / 2.0, bottom - BOX_ANKLE_OFFSET * (bottom - top))
+        placed.append(replace(person, ankle_px=contact, unusable_reason=BOX_REASON))
+    return placed

@@ -17,7 +17,7 @@ import numpy as np
 import pydantic_core
 
 from service.domain import PersonIn, StoredCentres, ViolationIn, centres
-from service.frames.keypoints import PARTIAL_REASON, SEATED_REASON, STATIC_REASON
+from service.frames.keypoints import BOX_REASON, PARTIAL_REASON, SEATED_REASON, STATIC_REASON
 from service.frames.schemas import FrameResult
 from service.geometry import Calibration, measure
 from service.geometry.priors import DEFAULT_HEIGHT_STD_M
@@ -30,6 +30,9 @@ from service.geometry.priors import DEFAULT_HEIGHT_STD_M
 SEATED_HEIGHT_FRACTION = 0.78
 SEATED_HEIGHT_STD_M = 0.12
 PARTIAL_HEIGHT_STD_M = 0.3
+# Pixel sigma of a box-bottom contact (service.frames.keypoints.place_from_boxes), as a fraction of a standing
+# person's shoulder-to-ankle length in pixels at their place: measured on Town Centre (docs/benchmarks/pose.md).
+BOX_CONTACT_STD_FRACTION = 0.06
 
 _NAN_POINT = (math.nan, math.nan)
 
@@ -64,17 +67,33 @@ def _ground_axes(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return right, forward
 
 
-def _shoulder_priors(people: Sequence[StoredCentres | PersonIn]) -> tuple[np.ndarray, np.ndarray]:
-    """Each person's shoulder height (fraction of the prior) and its sigma, from the pose's verdict on them."""
+def _shoulder_priors(people: Sequence[StoredCentres | PersonIn]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each person's shoulder height (fraction of the prior) and its sigma, and the sigma of their ground contact
+    (fraction of their standing height in pixels: not 0 for a box-bottom contact), from the verdict on them."""
     scale = np.ones(len(people))
     std_m = np.full(len(people), DEFAULT_HEIGHT_STD_M)
+    contact = np.zeros(len(people))
     for index, person in enumerate(people):
         reason = person.unusable_reason or ""
-        if reason.startswith(SEATED_REASON):
+        if _from_box(reason):
+            contact[index] = BOX_CONTACT_STD_FRACTION
+        elif reason.startswith(SEATED_REASON):
             scale[index], std_m[index] = SEATED_HEIGHT_FRACTION, SEATED_HEIGHT_STD_M
         elif reason.startswith(PARTIAL_REASON):
             std_m[index] = PARTIAL_HEIGHT_STD_M
-    return scale, std_m
+    return scale, std_m, contact
+
+
+def _placed_from(person: StoredCentres | PersonIn, has_bottom: bool) -> str:
+    """`ankles`, `box` (the detector box's bottom, service.frames.keypoints.place_from_boxes) or `shoulders`."""
+    if not has_bottom:
+        return "shoulders"
+    return "box" if _from_box(person.unusable_reason or "") else "ankles"
+
+
+def _from_box(reason: str) -> bool:
+    """Whether the verdict says the person stands on their box's bottom (also when flagged static after it)."""
+    return reason.startswith(BOX_REASON) or reason.startswith(f"{STATIC_REASON}; {BOX_REASON}")
 
 
 def measure_people(
@@ -104,8 +123,10 @@ def measure_people(
     bottoms = np.array([a if a is not None else _NAN_POINT for _, a in points], dtype=float).reshape(-1, 2)
     n = len(points)
     if n:
-        scale, std_m = _shoulder_priors(people)
-        m = measure(cal, tops, bottoms, noise_px=noise_px, height_std_m=std_m, height_scale=scale)
+        scale, std_m, contact = _shoulder_priors(people)
+        m = measure(
+            cal, tops, bottoms, noise_px=noise_px, height_std_m=std_m, height_scale=scale, contact_std_fraction=contact
+        )
         positions, distances, stds = m.points_bottom, m.distances_m, m.distance_std_m
     else:
         positions, distances, stds = np.zeros((0, 3)), np.zeros((0, 0)), np.zeros((0, 0))
@@ -117,7 +138,7 @@ def measure_people(
     placed_people = [
         {
             "index": index,
-            "placed_from": ("ankles" if points[index][1] is not None else "shoulders") if is_placed else None,
+            "placed_from": _placed_from(people[index], points[index][1] is not None) if is_placed else None,
             "ground_m": ground_m if is_placed else None,
             "point_m": point_m if is_placed else None,
             "static": still,

@@ -114,7 +114,12 @@ class PersonPosition(BaseModel):
     """
 
     index: int
-    placed_from: Literal["ankles", "shoulders"] | None
+    placed_from: Literal["ankles", "box", "shoulders"] | None = Field(
+        description="What put the person on the ground: `ankles` (their ankle centre), `box` (the pose was not "
+        "read, the bottom of their detector box, clear of the frame edge and of other people's boxes, with a wider "
+        "sigma) or `shoulders` (lower body hidden: the shoulder centre at the height prior, or a seated height). "
+        "Null when the person could not be placed."
+    )
     ground_m: tuple[float, float] | None
     point_m: tuple[float, float, float] | None
     static: bool = Field(

@@ -10,7 +10,11 @@ their shoulders, the spread of real heights around the prior.
 Not everyone stands: a seated person's shoulders are lower than a standing one's, and a person whose lower body
 is hidden may be either. Callers say so per person (`height_scale`: the shoulders' height as a fraction of the
 standing prior, `height_std_m`: how uncertain that height is), so such people are placed where their shoulders
-put them and their distances carry the wider sigma that uncertainty implies.
+put them and their distances carry the wider sigma that uncertainty implies. A person placed from a cue less
+precise than an ankle keypoint (the bottom of the detector's box) says so with `contact_std_fraction`: the pixel
+sigma of that point as a fraction of how tall (shoulder to ankle, in pixels) a person of the prior height stands
+at their place. It is relative because the cue's error is a share of the person's size in the image, which the
+camera predicts at any place; a stored person need not keep their box.
 """
 
 from __future__ import annotations
@@ -111,6 +115,15 @@ def _variants(cal: Calibration, tops_px: FloatArray, bottoms_px: FloatArray, cou
     )
 
 
+def _standing_length_px(cal: Calibration, points: FloatArray) -> FloatArray:
+    """(N,) shoulder-to-ankle length in pixels of a person of the prior height standing at each ground point
+    (pinhole: the lens changes it by a few percent, below the precision of the cue it scales); 0 where unplaced."""
+    tops = points + cal.height_m * cal.normal
+    with np.errstate(invalid="ignore", divide="ignore"):
+        uv = [np.stack((cal.fx * p[:, 0] / p[:, 2], cal.fy * p[:, 1] / p[:, 2]), -1) for p in (points, tops)]
+        return np.nan_to_num(np.hypot(*(uv[1] - uv[0]).T), nan=0.0)
+
+
 def measure(
     cal: Calibration,
     tops: ArrayLike,
@@ -118,6 +131,7 @@ def measure(
     noise_px: float | None = None,
     height_std_m: ArrayLike = DEFAULT_HEIGHT_STD_M,
     height_scale: ArrayLike = 1.0,
+    contact_std_fraction: ArrayLike = 0.0,
 ) -> Measurement:
     """Place people and measure every pair. Rows of NaN mark keypoints that were not seen.
 
@@ -125,7 +139,10 @@ def measure(
     own residuals; height_std_m is the spread of real shoulder heights around the
     prior (one value, or one per person), which matters only for people placed from
     their shoulders; height_scale (one value, or one per person, > 0) is each person's
-    shoulder height as a fraction of the calibration's height prior (1 standing).
+    shoulder height as a fraction of the calibration's height prior (1 standing);
+    contact_std_fraction (one value, or one per person) adds a pixel sigma to the point
+    each person is placed from, as a fraction of their predicted standing height in pixels
+    (see the module docstring).
     """
     tops_px = np.asarray(tops, dtype=np.float64).reshape(-1, 2)
     bottoms_px = np.asarray(bottoms, dtype=np.float64).reshape(-1, 2)
@@ -155,6 +172,9 @@ def measure(
     per_length = 0.0 if unc is None else unc.noise_per_length
     length_px = np.nan_to_num(np.hypot(*(tops_px - bottoms_px).T), nan=0.0)
     sigma2 = sigma_px**2 + (per_length * length_px) ** 2
+    contact = np.broadcast_to(np.asarray(contact_std_fraction, dtype=np.float64), from_ankles.shape)
+    if np.any(contact > 0):
+        sigma2 = sigma2 + (contact * _standing_length_px(cal, x0)) ** 2
     per_person = sigma2[:, None, None] * np.einsum("ani,anj->nij", dx_dpx, dx_dpx)
     # The last variant raises the prior by one step, each person's shoulders by `scale` steps.
     dx_dh = (xs[-1] - x0) / (_HEIGHT_STEP_M * scale[:, None])
