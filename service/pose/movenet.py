@@ -46,10 +46,9 @@ from typing import Final, Literal
 
 import cv2
 import numpy as np
-import onnxruntime as ort
 
 from .model_files import POSE_INPUT_PX, PoseModelName
-from .sessions import default_threads, make_session
+from .sessions import Runtime, Session, default_threads, make_session
 from .types import COCO17_KEYPOINTS
 
 log = logging.getLogger(__name__)
@@ -264,6 +263,7 @@ class MoveNet:
         *,
         threads: int | None = None,
         crops: CropMode = "concurrent",
+        runtime: Runtime = "onnxruntime",
     ) -> None:
         if crops not in CROP_MODES:
             raise ValueError(f"unknown crop mode {crops!r}; expected one of {', '.join(CROP_MODES)}")
@@ -271,25 +271,30 @@ class MoveNet:
         self.input_px = INPUT_PX[pose_model]
         self.workers = threads or default_threads()
         self.crop_mode: CropMode = crops
+        self.runtime: Runtime = runtime
         model_bytes = Path(model_path).read_bytes()
         # Concurrent crops each run on one core; the loop and the batch use the session's intra-op threads.
         session_threads = 1 if crops == "concurrent" else self.workers
+        streams = self.workers if crops == "concurrent" else 1
         self.normalise: InputNormalisation | None = None
         graph_bytes = model_bytes
         trimmed = _trim_preamble(model_bytes)
         if trimmed is not None:
-            self.full = make_session(trimmed[0], session_threads)
+            # The check compares graphs, so both run in float32 (sessions.py: `exact`).
+            self.full = make_session(trimmed[0], 1, runtime=runtime, exact=True)
             self.normalise = trimmed[1]
-            if self._trim_agrees(make_session(model_bytes, 1)):
+            if self._trim_agrees(make_session(model_bytes, 1, runtime=runtime, exact=True)):
                 graph_bytes = trimmed[0]
             else:
                 log.warning("%s: trimmed graph disagrees with the original; using the original", pose_model)
                 self.normalise = None
-        if self.normalise is None:
-            self.full = make_session(model_bytes, session_threads)
+        if self.normalise is None or runtime != "onnxruntime" or session_threads != 1:
+            self.full = make_session(graph_bytes, session_threads, runtime=runtime, streams=streams)
         self.backbone = self.head = None
         self._between: list[str] = []
-        if crops == "batched":
+        if crops == "batched" and runtime != "onnxruntime":
+            log.info("%s: the split graph is checked in onnxruntime only; crops run one at a time", pose_model)
+        elif crops == "batched":
             split = _split_graph(graph_bytes)
             if split is None:
                 log.info("%s: graph not splittable here (no `onnx` package?); crops run one at a time", pose_model)
@@ -321,7 +326,7 @@ class MoveNet:
         rng = np.random.default_rng(0)
         return rng.integers(0, 256, (2, self.input_px, self.input_px, 3)).astype(np.uint8)
 
-    def _trim_agrees(self, original: ort.InferenceSession) -> bool:
+    def _trim_agrees(self, original: Session) -> bool:
         """The trimmed graph after `InputNormalisation` reproduces the untouched graph on two fixed crops."""
         crops = self._fixed_crops()
         feeds = ({INPUT_NAME: crop[None].astype(np.int32)} for crop in crops)

@@ -26,6 +26,7 @@ from .detector import DEFAULT_INPUT_PX, DEFAULT_SCORE_THRESHOLD, Detections, Per
 from .model_files import POSE_INPUT_PX, PoseChoice, resolve_choice
 from .movenet import CropMode, MoveNet, crop_window, read_people
 from .regions import UNCALIBRATED_SCALES, Region, calibrated_plan, plan_cost, uncalibrated_plan, zoom_regions
+from .sessions import PoseRuntime, native_bf16, resolve_runtime
 from .types import DetectedPerson
 
 if TYPE_CHECKING:
@@ -81,6 +82,9 @@ class TopDownPose:
     (one after another, each on all threads: the plain baseline) or `batched` (split graph; no faster on CPU)."""
     uncalibrated_scales: tuple[float, ...] = UNCALIBRATED_SCALES
     """Whole-frame passes without a calibration (regions.uncalibrated_plan); the first is `detector_input_px`."""
+    pose_runtime: PoseRuntime = "auto"
+    """What MoveNet runs on (sessions.py): `auto` is OpenVINO in bfloat16 where the CPU has it natively, else
+    onnxruntime in float32. The detector always runs on onnxruntime in float32."""
     name: str = field(init=False)
     last_times: StageTimes = field(init=False, default_factory=StageTimes)
     last_plan: list[Region] = field(init=False, default_factory=list)
@@ -93,11 +97,16 @@ class TopDownPose:
             score_threshold=self.score_threshold,
             threads=self.threads,
         )
+        runtime = resolve_runtime(self.pose_runtime)
         self.movenets = {
-            path.pose_model: MoveNet(path.pose, path.pose_model, threads=self.threads, crops=self.crops)
+            path.pose_model: MoveNet(
+                path.pose, path.pose_model, threads=self.threads, crops=self.crops, runtime=runtime
+            )
             for path in paths
         }
-        self.name = f"rtmdet-nano@{self.detector_input_px}+movenet-{self.pose_model}"
+        # Recorded with every result: which keypoints these are, down to the arithmetic that produced them.
+        precision = "@bf16" if runtime == "openvino" and native_bf16() else ""
+        self.name = f"rtmdet-nano@{self.detector_input_px}+movenet-{self.pose_model}{precision}"
 
     def plan(
         self,
@@ -193,9 +202,11 @@ class TopDownPose:
 
 @lru_cache(maxsize=4)
 def _cached_estimator(
-    model_dir: Path, pose_model: PoseChoice, detector_input_px: int, threads: int | None
+    model_dir: Path, pose_model: PoseChoice, detector_input_px: int, threads: int | None, pose_runtime: PoseRuntime
 ) -> TopDownPose:
-    return TopDownPose(model_dir, pose_model, detector_input_px=detector_input_px, threads=threads)
+    return TopDownPose(
+        model_dir, pose_model, detector_input_px=detector_input_px, threads=threads, pose_runtime=pose_runtime
+    )
 
 
 def load_pose_estimator(settings: Settings) -> TopDownPose:
@@ -205,4 +216,5 @@ def load_pose_estimator(settings: Settings) -> TopDownPose:
         settings.pose_model,
         settings.detector_input_px,
         settings.inference_threads,
+        settings.pose_runtime,
     )

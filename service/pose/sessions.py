@@ -1,25 +1,59 @@
-"""One place that decides how onnxruntime sessions are built, so the detector and the pose model agree.
+"""One place that decides how inference sessions are built, so the detector and the pose model agree.
 
-Why these options:
-- CPU provider only: the service targets plain CPU hosts; a GPU build of onnxruntime would be a deployment choice.
-- intra-op threads default to the machine's cores (the detector); MoveNet's concurrent crop mode instead gives its
-  session one thread and runs as many crops at once as there are cores (movenet.py). Inter-op 1, because these
-  graphs are sequential chains and a second pool only competes for the same cores.
-- spinning off: onnxruntime's workers busy-wait between kernels by default, which wins a few percent on an idle
-  machine but, on a host shared with the API, the store and other workers, burns the cores other processes need
-  and made a 15-crop batch up to ten times slower in our measurements (see bench/pose.py).
-- full graph optimisation: constant folding, conv fusions and (only at this level) the NCHWc blocked layout:
-  MoveNet Thunder takes ~19 ms of one core per crop with it and ~37 ms at the `extended` level.
+Two runtimes run the same ONNX files:
+
+- onnxruntime (the detector always; MoveNet where OpenVINO cannot do better), float32 on the CPU provider:
+  - intra-op threads default to the machine's cores (the detector); MoveNet's concurrent crop mode instead gives
+    its session one thread and runs as many crops at once as there are cores (movenet.py). Inter-op 1, because
+    these graphs are sequential chains and a second pool only competes for the same cores.
+  - spinning off: onnxruntime's workers busy-wait between kernels by default, which wins a few percent on an idle
+    machine but, on a host shared with the API, the store and other workers, burns the cores other processes need
+    and made a 15-crop batch up to ten times slower in our measurements (see bench/pose.py).
+  - full graph optimisation: constant folding, conv fusions and (only at this level) the NCHWc blocked layout:
+    MoveNet Thunder takes ~19 ms of one core per crop with it and ~37 ms at the `extended` level.
+- OpenVINO, for MoveNet on CPUs with native bfloat16 arithmetic (AMX or AVX512-BF16: Intel Xeon since Sapphire
+  Rapids). There a Lightning crop takes ~2.9 ms of one core instead of ~6.4 and a Thunder crop ~10 instead of ~24,
+  while the keypoints move less than the float model's own response to a crop shifted by one image pixel
+  (docs/benchmarks/pose.md, "bfloat16 pose"). onnxruntime's CPU provider has no bfloat16 kernels on x86, and
+  OpenVINO in float32 is no faster than onnxruntime. The detector stays on onnxruntime in float32: in bfloat16
+  its borderline boxes (scores near the 0.3 threshold) change, and two seated people of the atrium annotation
+  were lost (14 -> 12 of 22).
+
+`PoseRuntime` `auto` picks OpenVINO where the CPU has native bfloat16 and onnxruntime elsewhere, so a host without
+it runs exactly the float32 pipeline. `exact=True` asks for float32 whatever the runtime: load-time checks that an
+edited graph computes what the file does compare graphs, not precisions.
 """
 
 from __future__ import annotations
 
 import os
+import threading
+from collections.abc import Sequence
+from functools import cache
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, Literal, Protocol
 
+import numpy as np
 import onnxruntime as ort
 
+if TYPE_CHECKING:
+    import openvino as ov
+
 PROVIDERS = ["CPUExecutionProvider"]
+PoseRuntime = Literal["auto", "onnxruntime", "openvino"]
+Runtime = Literal["onnxruntime", "openvino"]
+
+
+class _Named(Protocol):
+    name: str
+
+
+class Session(Protocol):
+    """What the pipeline asks of a session: onnxruntime's `InferenceSession` interface, as far as it is used."""
+
+    def get_inputs(self) -> Sequence[_Named]: ...
+
+    def run(self, output_names: Sequence[str] | None, input_feed: dict[str, np.ndarray]) -> list[np.ndarray]: ...
 
 
 def default_threads() -> int:
@@ -30,8 +64,30 @@ def default_threads() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+@cache
+def native_bf16() -> bool:
+    """Whether OpenVINO is installed and this CPU computes in bfloat16 natively (OpenVINO's own capability list)."""
+    try:
+        import openvino as ov
+    except ImportError:
+        return False
+    return "BF16" in ov.Core().get_property("CPU", "OPTIMIZATION_CAPABILITIES")
+
+
+def resolve_runtime(choice: PoseRuntime) -> Runtime:
+    """The runtime MoveNet runs on for a `pose_runtime` setting (see the module docstring)."""
+    if choice == "auto":
+        return "openvino" if native_bf16() else "onnxruntime"
+    if choice == "openvino":
+        try:
+            import openvino  # noqa: F401
+        except ImportError as exc:
+            raise ValueError("pose_runtime 'openvino' needs the openvino package (pip install openvino)") from exc
+    return choice
+
+
 def session_options(threads: int | None = None, *, spinning: bool = False) -> ort.SessionOptions:
-    """Options shared by every session of the pipeline (see the module docstring)."""
+    """onnxruntime options shared by every session of the pipeline (see the module docstring)."""
     options = ort.SessionOptions()
     options.intra_op_num_threads = threads or default_threads()
     options.inter_op_num_threads = 1
@@ -42,7 +98,73 @@ def session_options(threads: int | None = None, *, spinning: bool = False) -> or
     return options
 
 
-def make_session(model: Path | bytes, threads: int | None = None, *, spinning: bool = False) -> ort.InferenceSession:
-    """A CPU session on a file or on serialised model bytes (a graph edited in memory)."""
+def make_session(
+    model: Path | bytes,
+    threads: int | None = None,
+    *,
+    spinning: bool = False,
+    runtime: Runtime = "onnxruntime",
+    streams: int = 1,
+    exact: bool = False,
+) -> Session:
+    """A CPU session on a file or on serialised model bytes (a graph edited in memory).
+
+    `streams`: how many threads will call `run` at once, each wanting `threads` cores (onnxruntime runs each call
+    on the caller's thread and its own intra-op pool, so only OpenVINO needs to know). `exact`: float32 whatever
+    the runtime's fastest precision.
+    """
+    if runtime == "openvino":
+        return OpenVINOSession(model, threads or default_threads(), streams=streams, exact=exact)
     source = str(model) if isinstance(model, Path) else model
     return ort.InferenceSession(source, session_options(threads, spinning=spinning), providers=PROVIDERS)
+
+
+class _Input:
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+
+class OpenVINOSession:
+    """An OpenVINO compiled model behind onnxruntime's `run` interface, safe to call from several threads at once.
+
+    A compiled model executes requests on "streams"; each calling thread gets its own infer request, and the model
+    is compiled with one stream per concurrent caller (`streams`), each of `threads` cores, so concurrent crops
+    run side by side instead of queueing on one stream. A model with a fixed input shape (MoveNet) is compiled for
+    it; one with a symbolic shape keeps it symbolic (one compilation, not one per shape).
+    """
+
+    def __init__(self, model: Path | bytes, threads: int, *, streams: int = 1, exact: bool = False) -> None:
+        core = _core()
+        graph = core.read_model(str(model)) if isinstance(model, Path) else core.read_model(model, b"")
+        config: dict[str, Any] = {
+            "NUM_STREAMS": max(1, streams),
+            "INFERENCE_NUM_THREADS": max(1, threads) * max(1, streams),
+            "INFERENCE_PRECISION_HINT": "f32" if exact or not native_bf16() else "bf16",
+            # Pinned threads cannot move off a core the API or another worker is using: on a shared host, no.
+            "ENABLE_CPU_PINNING": False,
+        }
+        if streams <= 1:
+            config["PERFORMANCE_HINT"] = "LATENCY"
+        self._compiled: ov.CompiledModel = core.compile_model(graph, "CPU", config)
+        self._inputs = [_Input(port.get_any_name()) for port in graph.inputs]
+        self._outputs = {name: port for port in self._compiled.outputs for name in port.get_names()}
+        self._local = threading.local()
+
+    def get_inputs(self) -> Sequence[_Named]:
+        return self._inputs
+
+    def run(self, output_names: Sequence[str] | None, input_feed: dict[str, np.ndarray]) -> list[np.ndarray]:
+        request = getattr(self._local, "request", None)
+        if request is None:
+            request = self._local.request = self._compiled.create_infer_request()
+        results = request.infer(input_feed)
+        names = output_names or [port.get_any_name() for port in self._compiled.outputs]
+        # Copies: the request reuses its output buffers on the next call.
+        return [np.array(results[self._outputs[name]]) for name in names]
+
+
+@cache
+def _core() -> ov.Core:
+    import openvino as ov
+
+    return ov.Core()

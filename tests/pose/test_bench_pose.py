@@ -30,6 +30,19 @@ def test_pose_benchmark_on_one_frame(model_dir: Path, town_dir: Path, tmp_path: 
     assert any("auto" in line and "calibrated" in line and "<= 100 ms" in line for line in lines)
 
 
+def test_pose_benchmark_times_each_runtime(model_dir: Path, town_dir: Path, tmp_path: Path) -> None:
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    shutil.copyfile(town_dir / "frames" / "clip_000060.jpg", frames / "clip_000060.jpg")
+    result = run_pose_benchmark(
+        model_dir, frames, ("lightning",), repeats=1, plans=("uncalibrated",), runtimes=("onnxruntime", "openvino")
+    )
+    assert [t.runtime for t in result.timings] == ["onnxruntime", "openvino"]
+    # The same detector (onnxruntime in float32 for both), so the same people.
+    assert result.timings[0].people == result.timings[1].people
+    assert any(" openvino " in line for line in pose_lines(result))
+
+
 def test_missing_frames_are_an_error(model_dir: Path, tmp_path: Path) -> None:
     with pytest.raises(FileNotFoundError, match="clip_"):
         run_pose_benchmark(model_dir, tmp_path, ("lightning",), repeats=1)

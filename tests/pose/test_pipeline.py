@@ -22,11 +22,14 @@ from service.pose.movenet import (
     read_people,
 )
 from service.pose.pipeline import THUNDER_FROM_CROP_PX, TopDownPose, load_pose_estimator
-from service.pose.sessions import make_session
+from service.pose.sessions import make_session, native_bf16
 from service.pose.types import DetectedPerson
 from service.settings import Settings
 
 from .conftest import IMAGE_SIZE
+
+# The estimator's name records bfloat16 keypoints (pose_runtime auto on a CPU with native bfloat16).
+BF16 = "@bf16" if native_bf16() else ""
 
 # Measured with the detector at 640: of the annotated pedestrians fully in view and >= 60 px tall, 37/46 = 0.80 on
 # TEST_FRAMES and 149/198 = 0.75 over all 22 clip frames are found at IoU >= 0.5 (0.955 at IoU >= 0.4). Most
@@ -125,7 +128,7 @@ def test_shoulders_above_ankles_for_upright_pedestrians(thunder_people: dict[int
 
 def test_lightning_also_finds_people(lightning: TopDownPose, town_frames: dict[int, np.ndarray]) -> None:
     people = lightning(town_frames[60])
-    assert lightning.name == "rtmdet-nano@640+movenet-lightning"
+    assert lightning.name == f"rtmdet-nano@640+movenet-lightning{BF16}"
     assert len(people) >= 5
     with_centres = [p for p in people if all(c is not None for c in coco_centres(p.coco_keypoints()))]
     assert len(with_centres) >= 3
@@ -236,7 +239,7 @@ def test_factory_is_cached_per_settings(model_dir: Path) -> None:
     settings = Settings(model_dir=model_dir, pose_model="lightning", detector_input_px=320, inference_threads=1)
     first = load_pose_estimator(settings)
     assert load_pose_estimator(settings) is first
-    assert first.name == "rtmdet-nano@320+movenet-lightning"
+    assert first.name == f"rtmdet-nano@320+movenet-lightning{BF16}"
 
 
 @pytest.fixture(scope="module")
@@ -248,7 +251,7 @@ def test_auto_reads_each_person_with_the_model_their_size_needs(
     auto: TopDownPose, town_frames: dict[int, np.ndarray]
 ) -> None:
     people = auto(town_frames[0])
-    assert auto.name == "rtmdet-nano@640+movenet-auto"
+    assert auto.name == f"rtmdet-nano@640+movenet-auto{BF16}"
     assert {p.pose_model for p in people} <= {"thunder", "lightning"} and people
     # A 330 px tall person (crop 413 px) is read by Thunder, a 150 px one (crop 188 px) by Lightning.
     assert auto._models_for(np.array([[0.0, 0.0, 120.0, 330.0], [0.0, 0.0, 60.0, 150.0]])) == ["thunder", "lightning"]
