@@ -23,6 +23,9 @@ Crop modes (measured with `posemetry bench pose` and per-crop CPU times, 2-core 
   no faster than the loop on CPU (the 64x64 convolutions already keep the GEMM kernels busy at batch 1, so a
   batch amortises only the ~0.1 ms per-run overhead); kept for hardware where it may pay.
 
+Runtime: onnxruntime float32, or OpenVINO bfloat16 on CPUs that compute in it natively (sessions.py: ~2x less CPU
+per crop, keypoints within the float model's response to a one-pixel crop shift); the crop modes work alike on both.
+
 Not done, measured: INT8. onnxruntime's static QDQ quantisation (per-channel s8 weights, u8 activations, MinMax
 calibration on 100-200 Town Centre crops from frames outside the test set, decoding head kept in float) runs a
 Thunder crop in ~14-15 ms instead of ~24 ms (untrimmed graphs), but moves confident keypoints (score > 0.3) by
