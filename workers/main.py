@@ -322,6 +322,10 @@ def run_worker(
     """
     settings = settings or get_settings()
     jobs.preload()
+    if fork:
+        from service.pose.sessions import serve_forked_jobs
+
+        serve_forked_jobs()
     if POSE_QUEUE in queues:
         jobs.preload_pose(settings)
     connection = connect(redis_url(settings))

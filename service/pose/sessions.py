@@ -74,11 +74,27 @@ def native_bf16() -> bool:
     return "BF16" in ov.Core().get_property("CPU", "OPTIMIZATION_CAPABILITIES")
 
 
+_forked_jobs = False
+
+
+def serve_forked_jobs() -> None:
+    """This process will fork a child per job that runs the sessions it built (a `--fork` worker): from now on
+    `auto` means onnxruntime, and `openvino` is refused. OpenVINO's thread pools do not survive fork: a child's
+    first inference waits forever for threads that exist only in the parent."""
+    global _forked_jobs
+    _forked_jobs = True
+
+
 def resolve_runtime(choice: PoseRuntime) -> Runtime:
     """The runtime MoveNet runs on for a `pose_runtime` setting (see the module docstring)."""
     if choice == "auto":
-        return "openvino" if native_bf16() else "onnxruntime"
+        return "openvino" if native_bf16() and not _forked_jobs else "onnxruntime"
     if choice == "openvino":
+        if _forked_jobs:
+            raise ValueError(
+                "pose_runtime 'openvino' cannot serve a worker that forks a child per job (its thread pools do not "
+                "survive fork): run the worker without --fork, or set POSEMETRY_POSE_RUNTIME=onnxruntime or auto"
+            )
         try:
             import openvino  # noqa: F401
         except ImportError as exc:
@@ -149,11 +165,14 @@ class OpenVINOSession:
         self._inputs = [_Input(port.get_any_name()) for port in graph.inputs]
         self._outputs = {name: port for port in self._compiled.outputs for name in port.get_names()}
         self._local = threading.local()
+        self._pid = os.getpid()
 
     def get_inputs(self) -> Sequence[_Named]:
         return self._inputs
 
     def run(self, output_names: Sequence[str] | None, input_feed: dict[str, np.ndarray]) -> list[np.ndarray]:
+        if os.getpid() != self._pid:  # a forked child would wait forever for the parent's threads
+            raise RuntimeError("an OpenVINO session cannot run in a process forked after it was built")
         request = getattr(self._local, "request", None)
         if request is None:
             request = self._local.request = self._compiled.create_infer_request()

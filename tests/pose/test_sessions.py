@@ -3,6 +3,9 @@ call from the crop pool's threads, and its bfloat16 keypoints stay within the fl
 
 from __future__ import annotations
 
+import os
+import signal
+import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -10,6 +13,7 @@ import numpy as np
 import onnxruntime as ort
 import pytest
 
+from service.pose import sessions
 from service.pose.model_files import LIGHTNING
 from service.pose.movenet import INPUT_NAME, OUTPUT_NAME, MoveNet, crop_window, read_people
 from service.pose.pipeline import TopDownPose
@@ -86,3 +90,34 @@ def test_bfloat16_keypoints_move_no_more_than_a_one_pixel_crop_shift_moves_the_f
     assert bf16_px.mean() < 1.15 * shift_px.mean(), (bf16_px.mean(), shift_px.mean())
     p95 = np.percentile(bf16_px, 95), np.percentile(shift_px, 95)
     assert p95[0] < 1.15 * p95[1], p95
+
+
+def test_a_forking_worker_runs_onnxruntime_and_refuses_openvino(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(sessions, "_forked_jobs", False)
+    sessions.serve_forked_jobs()
+    assert resolve_runtime("auto") == "onnxruntime"
+    with pytest.raises(ValueError, match="--fork"):
+        resolve_runtime("openvino")
+
+
+def test_an_openvino_session_refuses_to_run_in_a_forked_child_instead_of_hanging(model_dir: Path) -> None:
+    session = make_session(model_dir / LIGHTNING.file_name, 1, runtime="openvino")
+    crop = _crops(1)[0]
+    session.run([OUTPUT_NAME], {INPUT_NAME: crop})  # its threads exist, in this process
+    pid = os.fork()
+    if pid == 0:  # the child: exit 3 if refused, 4 if it ran, never hang (the parent kills it after 30 s)
+        try:
+            session.run([OUTPUT_NAME], {INPUT_NAME: crop})
+            os._exit(4)
+        except RuntimeError:
+            os._exit(3)
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline:
+        done, status = os.waitpid(pid, os.WNOHANG)
+        if done:
+            assert os.waitstatus_to_exitcode(status) == 3
+            return
+        time.sleep(0.05)
+    os.kill(pid, signal.SIGKILL)
+    os.waitpid(pid, 0)
+    pytest.fail("the forked child hung in the OpenVINO session")
