@@ -54,6 +54,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from service.domain import PersonIn
+from service.pose.occlusion import drawn_to_feet_in_front
 
 if TYPE_CHECKING:
     from service.pose.types import DetectedPerson
@@ -163,7 +164,10 @@ def person_from_detection(person: DetectedPerson, image_size_px: tuple[int, int]
 
 
 def box_bottom_problem(
-    box_px: Sequence[float], others_px: Sequence[Sequence[float]], image_size_px: tuple[int, int]
+    box_px: Sequence[float],
+    others_px: Sequence[Sequence[float]],
+    image_size_px: tuple[int, int],
+    front_px: Sequence[Sequence[float]] | None = None,
 ) -> str | None:
     """Why a detector box's bottom centre is not a ground contact, or None when it is (see `place_from_boxes`).
 
@@ -171,8 +175,15 @@ def box_bottom_problem(
     out of view, at a side the centre moves, and at the top nothing says the box holds a person rather than the
     bicycle beside one, as on Town Centre frame 88), a bottom centre inside another person's box (the box of a
     person behind someone ends where they disappear, not at their feet; unlike a keypoint, the whole box is an
-    occluder here: a contact that might be a guess places nobody), or a box mostly inside another one (a second
-    box of one person).
+    occluder here: a contact that might be a guess places nobody), a box mostly inside another one (a second
+    box of one person), or a box ending level with the box of a person in front of it (service/pose/occlusion.py,
+    `drawn_to_feet_in_front`: their box begins lower, covers a fifth of this one and ends within 5 % of its height
+    of this one's bottom): someone further away has their feet higher in the image than the person in front, so
+    such a box was drawn down to hidden feet (Town Centre frame 36: the woman behind the woman in red, boxed to
+    the other's feet, 0.45 m from her).
+    `front_px`: the boxes that can be such a person in front (default: all of `others_px`); `place_from_boxes`
+    passes those the detector believes (`BOX_MIN_SCORE`), so that a suitcase boxed at 0.44 beside its owner's
+    legs does not unplace him (Town Centre frame 60).
     """
     left, top, right, bottom = (float(v) for v in box_px)
     width_px, height_px = image_size_px
@@ -193,6 +204,9 @@ def box_bottom_problem(
         overlap_h = min(bottom, o_bottom) - max(top, o_top)
         if overlap_w > 0 and overlap_h > 0 and overlap_w * overlap_h > BOX_INSIDE_FRACTION * area:
             return "box mostly inside another person's box"
+    front = others_px if front_px is None else front_px
+    if len(front) and drawn_to_feet_in_front(box_px, np.asarray(front, dtype=float)):
+        return "box ends level with the box of a person in front of it (drawn down to hidden feet)"
     return None
 
 
@@ -285,10 +299,15 @@ def place_from_boxes(people: Sequence[PersonIn], image_size_px: tuple[int, int])
             placed.append(person)
             continue
         others = [other for j, other in enumerate(boxes) if j != index and other is not None]
+        front = [
+            other.box_px
+            for j, other in enumerate(people)
+            if j != index and other.box_px is not None and (other.detection_score or 1.0) >= BOX_MIN_SCORE
+        ]
         left, top, right, bottom = box
         shoulder = person.shoulder_px
         cut = shoulder is not None and bottom - shoulder[1] < BOX_MIN_SHOULDER_DROP * (bottom - top)
-        if cut or box_bottom_problem(box, others, image_size_px) is not None:
+        if cut or box_bottom_problem(box, others, image_size_px, front) is not None:
             placed.append(person)
             continue
         contact = ((left + right) / 2.0, bottom - BOX_ANKLE_OFFSET * (bottom - top))

@@ -51,6 +51,7 @@ import cv2
 import numpy as np
 
 from .model_files import POSE_INPUT_PX, PoseModelName
+from .occlusion import fill_boxes
 from .sessions import Runtime, Session, default_threads, make_session
 from .types import COCO17_KEYPOINTS
 
@@ -92,20 +93,30 @@ def crop_window(box_xyxy: tuple[float, float, float, float] | np.ndarray, scale:
     return CropWindow(x0=round((left + right - side) / 2), y0=round((top + bottom - side) / 2), side=side)
 
 
-def extract_crop(image_bgr: np.ndarray, window: CropWindow, out_px: int) -> np.ndarray:
-    """(out_px, out_px, 3) uint8 RGB: the window, black where it leaves the image, resized (area filter downwards)."""
+def extract_crop(
+    image_bgr: np.ndarray, window: CropWindow, out_px: int, masked_xyxy_px: np.ndarray | None = None
+) -> np.ndarray:
+    """(out_px, out_px, 3) uint8 RGB: the window, black where it leaves the image, resized (area filter downwards).
+
+    `masked_xyxy_px`: boxes (image pixels) filled with black in the crop before resizing: the nearer people in
+    front of a hidden person (occlusion.py), so that MoveNet reads the hidden one.
+    """
     height, width = image_bgr.shape[:2]
     side = window.side
     x_lo, y_lo = max(window.x0, 0), max(window.y0, 0)
     x_hi, y_hi = min(window.x0 + side, width), min(window.y0 + side, height)
     if (x_hi - x_lo, y_hi - y_lo) == (side, side):
         square = image_bgr[y_lo:y_hi, x_lo:x_hi]  # inside the image: resized straight from a view, no copy
+        if masked_xyxy_px is not None:
+            square = square.copy()
     else:
         square = np.zeros((side, side, 3), dtype=np.uint8)
         if x_hi > x_lo and y_hi > y_lo:
             square[y_lo - window.y0 : y_hi - window.y0, x_lo - window.x0 : x_hi - window.x0] = image_bgr[
                 y_lo:y_hi, x_lo:x_hi
             ]
+    if masked_xyxy_px is not None:
+        fill_boxes(square, window.x0, window.y0, masked_xyxy_px)
     interpolation = cv2.INTER_AREA if side > out_px else cv2.INTER_LINEAR
     resized = cv2.resize(square, (out_px, out_px), interpolation=interpolation)
     return cv2.cvtColor(resized, cv2.COLOR_BGR2RGB)

@@ -39,12 +39,42 @@ def test_a_box_whose_bottom_is_clear_is_a_contact() -> None:
         (BOX, [(880.0, 450.0, 990.0, 760.0)], "box bottom inside another person's box"),
         # A second box of one person (their legs boxed apart), its bottom on the other's bottom edge.
         ((910.0, 520.0, 970.0, 640.0), [BOX], "box mostly inside another person's box"),
+        # Behind someone whose box begins lower and ends level with it (Town Centre frame 36: the woman behind the
+        # woman in red, boxed down to hidden feet, its bottom centre just right of the other's box).
+        (
+            (1722.0, 677.0, 1812.0, 996.0),
+            [(1634.0, 741.0, 1757.0, 998.0)],
+            "box ends level with the box of a person in front of it (drawn down to hidden feet)",
+        ),
     ],
 )
 def test_a_box_cut_by_the_frame_or_by_another_person_is_no_contact(
     box: tuple[float, float, float, float], others: list[tuple[float, float, float, float]], problem: str
 ) -> None:
     assert box_bottom_problem(box, others, IMAGE_SIZE) == problem
+
+
+def test_only_a_box_the_detector_believes_stands_in_front() -> None:
+    """A suitcase boxed at 0.44 beside its owner's legs (Town Centre frame 60) does not unplace him."""
+    owner = PersonIn(
+        shoulder_px=None,
+        ankle_px=None,
+        unusable_reason="shoulders not confidently seen",
+        box_px=(1793.0, 377.0, 1868.0, 610.0),
+        detection_score=0.83,
+    )
+    suitcase = PersonIn(
+        shoulder_px=None,
+        ankle_px=None,
+        unusable_reason="shoulders not confidently seen",
+        box_px=(1782.0, 448.0, 1824.0, 604.0),
+        detection_score=0.44,
+    )
+    assert box_bottom_problem(owner.box_px, [suitcase.box_px], IMAGE_SIZE) is not None  # type: ignore[arg-type]
+    placed = place_from_boxes([owner, suitcase], IMAGE_SIZE)
+    assert placed[0].unusable_reason == BOX_REASON and placed[0].ankle_px is not None
+    confident = place_from_boxes([owner, replace(suitcase, detection_score=0.6)], IMAGE_SIZE)
+    assert confident[0].ankle_px is None
 
 
 def test_unread_people_with_a_clear_box_are_placed_from_it_and_are_never_evidence() -> None:

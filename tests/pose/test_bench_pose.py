@@ -26,6 +26,7 @@ def test_pose_benchmark_on_one_frame(model_dir: Path, town_dir: Path, tmp_path: 
         assert timing.cpu_s[0] > 0 and timing.stage_cpu_s["detector"][0] > 0
         assert timing.input_pixels[0] > 640 * 384  # more than the plain pass: the plan's other regions
         assert 0 <= timing.thunder_people[0] <= timing.people[0]
+        assert 0 <= timing.reread_people[0] <= timing.people[0]
     lines = pose_lines(result)
     assert any("auto" in line and "calibrated" in line and "<= 100 ms" in line for line in lines)
 
