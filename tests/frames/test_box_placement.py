@@ -25,6 +25,17 @@ THRESHOLD_M = 1.8288
 BOX = (900.0, 400.0, 980.0, 640.0)
 
 
+def _unread(box_px: tuple[float, float, float, float], score: float) -> PersonIn:
+    """A detected person whose pose was not read: only the detector's box and score."""
+    return PersonIn(
+        shoulder_px=None,
+        ankle_px=None,
+        unusable_reason="shoulders not confidently seen",
+        box_px=box_px,
+        detection_score=score,
+    )
+
+
 def test_a_box_whose_bottom_is_clear_is_a_contact() -> None:
     assert box_bottom_problem(BOX, [(1100.0, 380.0, 1180.0, 620.0)], IMAGE_SIZE) is None
 
@@ -56,20 +67,8 @@ def test_a_box_cut_by_the_frame_or_by_another_person_is_no_contact(
 
 def test_only_a_box_the_detector_believes_stands_in_front() -> None:
     """A suitcase boxed at 0.44 beside its owner's legs (Town Centre frame 60) does not unplace him."""
-    owner = PersonIn(
-        shoulder_px=None,
-        ankle_px=None,
-        unusable_reason="shoulders not confidently seen",
-        box_px=(1793.0, 377.0, 1868.0, 610.0),
-        detection_score=0.83,
-    )
-    suitcase = PersonIn(
-        shoulder_px=None,
-        ankle_px=None,
-        unusable_reason="shoulders not confidently seen",
-        box_px=(1782.0, 448.0, 1824.0, 604.0),
-        detection_score=0.44,
-    )
+    owner = _unread((1793.0, 377.0, 1868.0, 610.0), 0.83)
+    suitcase = _unread((1782.0, 448.0, 1824.0, 604.0), 0.44)
     assert box_bottom_problem(owner.box_px, [suitcase.box_px], IMAGE_SIZE) is not None  # type: ignore[arg-type]
     placed = place_from_boxes([owner, suitcase], IMAGE_SIZE)
     assert placed[0].unusable_reason == BOX_REASON and placed[0].ankle_px is not None
@@ -78,13 +77,7 @@ def test_only_a_box_the_detector_believes_stands_in_front() -> None:
 
 
 def test_unread_people_with_a_clear_box_are_placed_from_it_and_are_never_evidence() -> None:
-    unread = PersonIn(
-        shoulder_px=None,
-        ankle_px=None,
-        unusable_reason="shoulders not confidently seen",
-        box_px=BOX,
-        detection_score=0.8,
-    )
+    unread = _unread(BOX, 0.8)
     hidden = PARTIAL_REASON
     behind = PersonIn(
         shoulder_px=(1130.0, 420.0),

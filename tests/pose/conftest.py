@@ -22,6 +22,30 @@ from tests.support.shared import SHARED_DATA, TOWN_CENTRE, model_dir_path
 TOWN = TOWN_CENTRE
 ATRIUM = SHARED_DATA / "mot3d_atrium" / "frames"
 IMAGE_SIZE = (1920, 1080)
+
+# A standing person ~200 px tall: COCO-17 keypoints (x, y) from head to ankles.
+POSE = np.array(
+    [
+        [500, 310],
+        [495, 305],
+        [505, 305],
+        [490, 308],
+        [510, 308],
+        [480, 340],
+        [520, 340],
+        [475, 390],
+        [525, 390],
+        [472, 430],
+        [528, 430],
+        [488, 430],
+        [512, 430],
+        [490, 470],
+        [510, 470],
+        [491, 505],
+        [509, 505],
+    ],
+    dtype=float,
+)
 # A few spread-out clip frames: enough people (9-14 annotated each) for recall, fast enough for CI.
 TEST_FRAMES = (0, 30, 60, 90, 120)
 

@@ -8,31 +8,7 @@ from service.frames.keypoints import people_from_detections
 from service.pose.pipeline import TopDownPose
 from service.pose.types import DetectedPerson
 
-from .conftest import IMAGE_SIZE
-
-# A standing person ~200 px tall: COCO-17 keypoints (x, y) from head to ankles.
-_POSE = np.array(
-    [
-        [500, 310],
-        [495, 305],
-        [505, 305],
-        [490, 308],
-        [510, 308],
-        [480, 340],
-        [520, 340],
-        [475, 390],
-        [525, 390],
-        [472, 430],
-        [528, 430],
-        [488, 430],
-        [512, 430],
-        [490, 470],
-        [510, 470],
-        [491, 505],
-        [509, 505],
-    ],
-    dtype=float,
-)
+from .conftest import IMAGE_SIZE, POSE
 
 
 def _person(keypoints: np.ndarray, box: tuple[float, float, float, float], score: float) -> DetectedPerson:
@@ -42,11 +18,11 @@ def _person(keypoints: np.ndarray, box: tuple[float, float, float, float], score
 def test_a_repeated_pose_is_dropped_and_a_close_neighbour_kept() -> None:
     rng = np.random.default_rng(0)
     found = [
-        _person(_POSE, (460, 290, 540, 515), 0.8),
+        _person(POSE, (460, 290, 540, 515), 0.8),
         # The same person read again from a neighbour's box (a few px of crop-to-crop jitter).
-        _person(_POSE + rng.normal(0, 1.5, _POSE.shape), (390, 280, 455, 500), 0.6),
+        _person(POSE + rng.normal(0, 1.5, POSE.shape), (390, 280, 455, 500), 0.6),
         # Someone pressed against them: a shoulder width (~50 px) to the right.
-        _person(_POSE + (50.0, 4.0), (505, 292, 590, 518), 0.5),
+        _person(POSE + (50.0, 4.0), (505, 292, 590, 518), 0.5),
     ]
     people = people_from_detections(found, (1920, 1080))
     assert people[0].unusable_reason is None and people[2].unusable_reason is None
@@ -71,8 +47,8 @@ def test_no_two_people_of_a_real_frame_share_a_pose(thunder: TopDownPose, town_f
 def test_two_boxes_placing_one_person_at_one_point_are_one_person() -> None:
     """A person cut by the frame's bottom edge, boxed twice: only the head and shoulders are seen in each box, and
     the arms disagree, but both would be placed from the same shoulder centre: a 0.01 m "violation" otherwise."""
-    upper = _POSE.copy()
-    other = _POSE + np.random.default_rng(1).normal(0, 25, _POSE.shape)  # arms and legs read differently
+    upper = POSE.copy()
+    other = POSE + np.random.default_rng(1).normal(0, 25, POSE.shape)  # arms and legs read differently
     other[5:7] = upper[5:7] + 0.5  # the shoulders agree
     scores = np.full(17, 0.8)
     scores[11:] = 0.1  # hips, knees and ankles out of view

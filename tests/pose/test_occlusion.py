@@ -20,34 +20,13 @@ from service.pose.occlusion import (
     needs_reading,
 )
 
+from .conftest import POSE
+
 # Town Centre frame 48 (uncalibrated plan): the woman in red, and the woman walking behind her, whose box is amodal
 # (it ends 6 px above the red woman's, at her guessed feet).
 RED = (1642.0, 803.0, 1759.0, 1005.0)
 BEHIND = (1698.0, 728.0, 1778.0, 999.0)
 
-# A standing person ~200 px tall: COCO-17 keypoints (x, y) from head to ankles.
-POSE = np.array(
-    [
-        [500, 310],
-        [495, 305],
-        [505, 305],
-        [490, 308],
-        [510, 308],
-        [480, 340],
-        [520, 340],
-        [475, 390],
-        [525, 390],
-        [472, 430],
-        [528, 430],
-        [488, 430],
-        [512, 430],
-        [490, 470],
-        [510, 470],
-        [491, 505],
-        [509, 505],
-    ],
-    dtype=float,
-)
 POSE_BOX = np.array([460.0, 290.0, 540.0, 515.0])
 
 
