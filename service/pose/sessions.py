@@ -13,7 +13,7 @@ Two runtimes run the same ONNX files:
     MoveNet Thunder takes ~19 ms of one core per crop with it and ~37 ms at the `extended` level.
 - OpenVINO, for MoveNet on CPUs with native bfloat16 arithmetic (AMX or AVX512-BF16: Intel Xeon since Sapphire
   Rapids). There a Lightning crop takes ~2.9 ms of one core instead of ~6.4 and a Thunder crop ~10 instead of ~24,
-  while the keypoints move less than the float model's own response to a crop shifted by one image pixel
+  while the keypoints move no more than the float model's own do when its crop is shifted by one image pixel
   (docs/benchmarks/pose.md, "bfloat16 pose"). onnxruntime's CPU provider has no bfloat16 kernels on x86, and
   OpenVINO in float32 is no faster than onnxruntime. The detector stays on onnxruntime in float32: in bfloat16
   its borderline boxes (scores near the 0.3 threshold) change, and two seated people of the atrium annotation
@@ -68,10 +68,10 @@ def default_threads() -> int:
 def native_bf16() -> bool:
     """Whether OpenVINO is installed and this CPU computes in bfloat16 natively (OpenVINO's own capability list)."""
     try:
-        import openvino as ov
+        import openvino  # noqa: F401
     except ImportError:
         return False
-    return "BF16" in ov.Core().get_property("CPU", "OPTIMIZATION_CAPABILITIES")
+    return "BF16" in _core().get_property("CPU", "OPTIMIZATION_CAPABILITIES")
 
 
 _forked_jobs = False
