@@ -119,13 +119,22 @@ def test_a_standalone_forking_worker_serves_its_own_metrics(
             waiting = select(func.count()).where(Frame.status != "done", Frame.id != image_frame)
             return session.scalar(waiting) == 0 and session.get(Frame, image_frame).status == "pending"
 
+    def jobs_recorded(metrics: Scrape) -> tuple[float, float]:
+        frames = metrics.value("posemetry_job_duration_seconds_count", queue=FRAMES_QUEUE, outcome="succeeded")
+        pose = metrics.value("posemetry_job_duration_seconds_count", queue=POSE_QUEUE, outcome="succeeded")
+        return frames, pose
+
     try:
         wait_for(worker, all_done, "every frame answered")
+        # A job's duration is recorded as it ends, after its frames are committed: the last one may still be ending.
+        deadline = time.monotonic() + 30
         metrics = _eventually(lambda: _scrape_port(port), worker)
+        while jobs_recorded(metrics)[0] < 2 and time.monotonic() < deadline:
+            time.sleep(0.2)
+            metrics = _scrape_port(port)
     finally:
         assert stop(worker) == 0
-    frames_jobs = metrics.value("posemetry_job_duration_seconds_count", queue=FRAMES_QUEUE, outcome="succeeded")
-    pose_jobs = metrics.value("posemetry_job_duration_seconds_count", queue=POSE_QUEUE, outcome="succeeded")
+    frames_jobs, pose_jobs = jobs_recorded(metrics)
     assert frames_jobs >= 2 and pose_jobs == 1
     assert metrics.value("posemetry_job_failures_total", queue=POSE_QUEUE) == 0
     # Recorded inside the forked job process, and still on the worker's port.
