@@ -93,13 +93,7 @@ def test_unread_people_with_a_clear_box_are_placed_from_it_and_are_never_evidenc
         detection_score=0.9,
     )
     # Shoulders low in the box: the box ends at a wall or a table, not at the feet.
-    walled = PersonIn(
-        shoulder_px=(1500.0, 520.0),
-        ankle_px=None,
-        unusable_reason=hidden,
-        box_px=(1470.0, 480.0, 1530.0, 600.0),
-        detection_score=0.8,
-    )
+    walled = replace(behind, shoulder_px=(1500.0, 520.0), box_px=(1470.0, 480.0, 1530.0, 600.0))
     repeat = PersonIn(
         shoulder_px=None,
         ankle_px=None,
