@@ -40,9 +40,7 @@ p95 off the float model's; a one-pixel crop shift moves them 2.3 / 4.8 px.
 from __future__ import annotations
 
 import logging
-import os
 from collections.abc import Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Final, Literal
@@ -52,7 +50,7 @@ import numpy as np
 
 from .model_files import POSE_INPUT_PX, PoseModelName
 from .occlusion import fill_boxes
-from .sessions import Runtime, Session, default_threads, make_session
+from .sessions import Runtime, Session, default_threads, make_session, thread_pool
 from .types import COCO17_KEYPOINTS
 
 log = logging.getLogger(__name__)
@@ -255,18 +253,6 @@ def _trim_preamble(model_bytes: bytes) -> tuple[bytes, InputNormalisation] | Non
     return model.SerializeToString(), InputNormalisation(offset, scale, shift)
 
 
-def _process_pool(workers: int) -> ThreadPoolExecutor:
-    """This process's crop threads (rebuilt in a forked child: an inherited pool's threads do not exist there)."""
-    key = (os.getpid(), workers)
-    pool = _POOLS.get(key)
-    if pool is None:
-        pool = _POOLS[key] = ThreadPoolExecutor(workers, thread_name_prefix="movenet-crop")
-    return pool
-
-
-_POOLS: dict[tuple[int, int], ThreadPoolExecutor] = {}
-
-
 class MoveNet:
     """One MoveNet SinglePose model on a frame's person crops, in one of three `CropMode`s (see the module notes)."""
 
@@ -388,7 +374,7 @@ class MoveNet:
         """One crop per thread at a time, each on one core; onnxruntime releases the GIL while it runs."""
         if self.workers == 1 or len(tensors) == 1:
             return self._run_each(tensors)
-        return np.concatenate(list(_process_pool(self.workers).map(self._run_one, tensors)))
+        return np.concatenate(list(thread_pool(self.workers).map(self._run_one, tensors)))
 
     def infer(self, crops_rgb: np.ndarray) -> np.ndarray:
         """(N, 17, 3) y, x, score (0..1 over each crop) for (N, S, S, 3) uint8 RGB crops."""
@@ -426,7 +412,7 @@ def read_people(image_bgr: np.ndarray, boxes_xyxy_px: np.ndarray, readers: Seque
     if all(reader.crop_mode == "concurrent" for reader in readers) and workers > 1 and len(windows) > 1:
         # Cropping and normalising in the pool too: no serial preprocessing before the first crop runs.
         order = sorted(range(len(windows)), key=lambda k: -readers[k].input_px)
-        results = _process_pool(workers).map(lambda k: readers[k].crop_and_run(image_bgr, windows[k]), order)
+        results = thread_pool(workers).map(lambda k: readers[k].crop_and_run(image_bgr, windows[k]), order)
         for k, result in zip(order, results, strict=True):
             raw[k] = result.reshape(COCO17_KEYPOINTS, 3)
     else:

@@ -55,7 +55,8 @@ class StageTimes:
 
     `detector` is the plain whole-frame pass (the frame letterboxed to `detector_input_px`), `tiling` every other
     region of the plan plus merging the regions' boxes, `pose` cropping, MoveNet and the assessment. Wall and
-    process CPU time (all threads) for each.
+    CPU time (all threads) for each; detector regions run side by side overlap, so the detection's wall time is
+    split between `detector` and `tiling` in proportion to their CPU.
     """
 
     detector_s: float = 0.0
@@ -233,11 +234,12 @@ class TopDownPose:
 
     def _stage_times(self, times: RegionTimes, pose_s: float, pose_cpu_s: float) -> StageTimes:
         base = times.base
-        detector_s = times.wall_s[base] if base is not None else 0.0
         detector_cpu_s = times.cpu_s[base] if base is not None else 0.0
+        # Regions run side by side share the wall clock: it is split between the stages as their CPU is.
+        detector_s = times.elapsed_s * detector_cpu_s / sum(times.cpu_s) if sum(times.cpu_s) > 0 else 0.0
         return StageTimes(
             detector_s=detector_s,
-            tiling_s=sum(times.wall_s) - detector_s + times.merge_s,
+            tiling_s=times.elapsed_s - detector_s,
             pose_s=pose_s,
             detector_cpu_s=detector_cpu_s,
             tiling_cpu_s=sum(times.cpu_s) - detector_cpu_s,

@@ -29,6 +29,7 @@ from __future__ import annotations
 import os
 import threading
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from functools import cache
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, Protocol
@@ -62,6 +63,19 @@ def default_threads() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # not on Linux
         return max(1, os.cpu_count() or 1)
+
+
+def thread_pool(workers: int) -> ThreadPoolExecutor:
+    """This process's pool of `workers` threads for session calls run side by side (person crops, detector
+    regions); rebuilt in a forked child, where an inherited pool's threads do not exist."""
+    key = (os.getpid(), workers)
+    pool = _POOLS.get(key)
+    if pool is None:
+        pool = _POOLS[key] = ThreadPoolExecutor(workers, thread_name_prefix="inference")
+    return pool
+
+
+_POOLS: dict[tuple[int, int], ThreadPoolExecutor] = {}
 
 
 @cache

@@ -10,7 +10,7 @@ import pytest
 from bench.towncentre import as_calibration, load_annotations, load_calibration
 from service.frames.keypoints import coco_centres
 from service.pose.assess import POSTURES
-from service.pose.detector import PersonDetector
+from service.pose.detector import PersonDetector, schedule
 from service.pose.model_files import DETECTOR, LIGHTNING, POSE_INPUT_PX, REGISTRY, PoseModelName
 from service.pose.movenet import (
     INPUT_NAME,
@@ -22,6 +22,7 @@ from service.pose.movenet import (
     read_people,
 )
 from service.pose.pipeline import THUNDER_FROM_CROP_PX, TopDownPose, load_pose_estimator
+from service.pose.regions import Region
 from service.pose.sessions import make_session, native_bf16
 from service.pose.types import DetectedPerson
 from service.settings import Settings
@@ -313,3 +314,34 @@ def test_a_calibration_guides_the_detector_to_as_many_people_for_less(
         assert len({round(r.scale, 3) for r in bands}) >= 2  # far people at a larger scale than near ones
     assert pixels["calibrated"] < pixels["uncalibrated"]
     assert found["calibrated"] >= found["uncalibrated"] - 2
+
+
+def test_regions_side_by_side_find_exactly_what_one_thread_finds(
+    auto: TopDownPose, model_dir: Path, town_frames: dict[int, np.ndarray], town_dir: Path
+) -> None:
+    """The calibrated plan's regions run side by side, one core each, the uncalibrated plan's 1280 px pass alone on
+    both (detector.schedule); either way the boxes and scores are bit for bit a one-thread detector's."""
+    calibration = as_calibration(load_calibration(town_dir / "TownCentre-calibration-ci.txt"))
+    two = PersonDetector(model_dir / DETECTOR.file_name, threads=2)
+    one = PersonDetector(model_dir / DETECTOR.file_name, threads=1)
+    for image in town_frames.values():
+        for cal in (None, calibration):
+            plan = auto.plan(IMAGE_SIZE, cal)
+            alone, side_by_side = schedule(plan, 2)
+            assert (len(side_by_side) >= 3) if cal is not None else (len(alone) == len(plan))
+            (ours, times), (reference, _) = two.detect(image, plan), one.detect(image, plan)
+            np.testing.assert_array_equal(ours.boxes_xyxy_px, reference.boxes_xyxy_px)
+            np.testing.assert_array_equal(ours.scores, reference.scores)
+            assert times.regions == plan and times.elapsed_s > 0
+
+
+def test_schedule_runs_a_dominant_region_alone_and_the_rest_side_by_side() -> None:
+    def region(width: int, height: int) -> Region:
+        return Region(0, 0, width, height, 1.0, (0.0, 0.0, float(width), float(height)))
+
+    big, small = region(1280, 736), region(640, 384)
+    assert schedule([small, big], 2) == ([1, 0], [])  # the big one alone, then nothing beside the small one
+    bands = [region(384, 160), region(640, 384), region(640, 224), region(800, 96)]
+    assert schedule(bands, 2) == ([], [1, 2, 3, 0])  # largest first
+    assert schedule(bands + [big], 2) == ([4], [1, 2, 3, 0])
+    assert schedule(bands, 1) == ([1, 2, 3, 0], [])
