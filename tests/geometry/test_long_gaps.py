@@ -118,3 +118,20 @@ def test_without_descriptors_the_labels_are_those_of_motion_alone(
     assert np.array_equal(link_tracks(times, tops, bottoms, appearance=[None] * n), plain)
     # Descriptors of another layout (a shorter blob) count as none.
     assert np.array_equal(link_tracks(times, tops, bottoms, appearance=[b"\x01" * 8] * n), plain)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), people=st.integers(2, 10), frames=st.integers(2, 10), spacing_s=st.floats(0.2, 4.0))
+def test_one_individual_is_never_seen_twice_in_one_frame(seed: int, people: int, frames: int, spacing_s: float) -> None:
+    # A crowd dressed in three looks, standing about: appearance and reach admit many joins, but a label never
+    # holds two observations of one frame time, whatever the long-gap stage joins.
+    rng = np.random.default_rng(seed)
+    n = people * frames
+    times = np.repeat(np.arange(frames) * spacing_s, people)
+    bottoms = rng.uniform((800, 600), (900, 700), size=(n, 2))
+    tops = bottoms - np.column_stack((np.zeros(n), rng.uniform(120, 140, n)))
+    looks = [_look(seed + k) for k in range(3)]
+    appearance = [_seen(looks[rng.integers(3)], seed + i, noise=0.05) for i in range(n)]
+    labels = link_tracks(times, tops, bottoms, appearance=appearance)
+    for label in np.unique(labels):
+        assert len(np.unique(times[labels == label])) == np.sum(labels == label)
