@@ -4,8 +4,8 @@ A descriptor (computed from the frame's pixels by service/pose/appearance.py) is
 regions, torso (shoulders to hips) and legs (hips to ankles), each APPEARANCE_BINS (hue x saturation x value)
 bins over HSV, stored as DESCRIPTOR_BYTES uint8 values: per region, round(255 sqrt(p)) of the normalised
 histogram p. Storing square roots makes the Bhattacharyya coefficient of two regions a dot product (sum of
-sqrt(p q)), and 256 bytes per person keep the store small. Quantising moves a distance by about 0.01, well under
-the gap between one person's distances and strangers' (median 0.30 vs 0.73 on Town Centre).
+sqrt(p q)), and 128 bytes per person keep the store small. Quantising moves a distance by about 0.01, well under
+the gap between one person's distances and strangers' (median 0.26 vs 0.89 on Town Centre).
 
 Regions are compared separately (the Bhattacharyya distance sqrt(1 - BC), as OpenCV's HISTCMP_BHATTACHARYYA)
 and the larger of the two distances counts: two strangers in the same dark coat differ in their trousers, and a
@@ -16,8 +16,11 @@ from __future__ import annotations
 
 import numpy as np
 
-APPEARANCE_BINS = (8, 4, 4)
-"""Hue, saturation, value bins of each region's histogram."""
+APPEARANCE_BINS = (8, 2, 4)
+"""Hue, saturation, value bins of each region's histogram. Two saturation bins (grey or coloured): on Town Centre
+four of them, which split one coat's saturation as light and JPEG blur shift it, linked 32 % of one person's pairs
+across frames at the distance that links 54 % with two, the strangers linked being the same (one look-alike
+couple); one bin did as well as two (docs/benchmarks/camera-model.md)."""
 REGION_BINS = APPEARANCE_BINS[0] * APPEARANCE_BINS[1] * APPEARANCE_BINS[2]
 APPEARANCE_REGIONS = ("torso", "legs")
 DESCRIPTOR_BYTES = REGION_BINS * len(APPEARANCE_REGIONS)

@@ -48,7 +48,7 @@ at most LONG_MAX_GAP_S before (someone crossing the view), when the appearance d
 MAX_APPEARANCE_DISTANCE, the ankle centre moved within a LONG_SPEED_M_S walk (sideways metres in l / h, generous
 in depth) and the sizes are within max_size_ratio. A chain only grows at its end, so it never holds two tracks
 that share a frame time. Town Centre's 22 clip frames posted 2 s apart: the solve's 105 inliers were 105
-"individuals" before, 51 after; 98.7 % of the linked pairs are one annotated person (the two wrong ones: two
+"individuals" before, 43 after; 99.2 % of the linked pairs are one annotated person (the two wrong ones: two
 people in dark coats walking together; docs/benchmarks/camera-model.md). People without descriptors (posted
 keypoints) are linked by motion alone, exactly as without the stage.
 """
@@ -91,8 +91,8 @@ LONG_MAX_GAP_S = 30.0
 LONG_SPEED_M_S = 2.0
 # Appearance distance (service.geometry.appearance, the larger of torso's and legs') under which two pieces are one
 # person. Town Centre's clip frames, detections matched to the annotated pedestrians (docs/benchmarks/camera-model.md):
-# one person across frames up to 5 s apart median 0.32, strangers median 0.93 (1st percentile 0.42); under 0.27,
-# 2 of 4979 stranger pairs (two people in dark coats walking together) and 185 of 572 one-person pairs.
+# one person across frames up to 5 s apart median 0.26, strangers median 0.89 (1st percentile 0.40); under 0.27,
+# 2 of 4979 stranger pairs (two people in dark coats walking together) and 308 of 572 one-person pairs.
 MAX_APPEARANCE_DISTANCE = 0.27
 APPEARANCE_SIGHTINGS = 5
 # Frame times are floats (25 frames of 0.04 s are 1.0000000000000002 s): time limits hold to a microsecond.

@@ -44,7 +44,7 @@ class DetectedPerson:
     pose_model: str = ""
     """Which pose model read this person (the pipeline picks Thunder or Lightning by the person's size)."""
     appearance: bytes | None = None
-    """What they look like (service.geometry.appearance: colour histograms of torso and legs, 256 bytes), for
+    """What they look like (service.geometry.appearance: colour histograms of torso and legs, 128 bytes), for
     `standing` people: it lets calibration link one person across frames seconds apart. None for others, or when
     too little of the body was seen."""
 
