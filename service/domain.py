@@ -54,6 +54,9 @@ class PersonIn:
     box_px: tuple[float, float, float, float] | None = None
     """Detector box (left, top, right, bottom) of a person found in an image."""
     detection_score: float | None = None
+    appearance: bytes | None = None
+    """What the person looks like (service.geometry.appearance), for linking them across frames seconds apart;
+    only from the image pipeline (posted keypoints carry none)."""
 
 
 class StoredCentres(Protocol):

@@ -51,17 +51,26 @@ class Evidence:
     bottoms_px: np.ndarray
     owners: list[tuple[int, int]]
     """(position in the frame list, person index) of each row."""
+    appearance: list[bytes | None] = field(default_factory=list)
+    """Each row's appearance descriptor (service.geometry.appearance): links one person across frames seconds
+    apart (images, a large --stride)."""
 
     @classmethod
     def of(cls, frames: Sequence[AnalyzedFrame]) -> Evidence:
-        tops, bottoms, owners = [], [], []
+        tops, bottoms, owners, appearance = [], [], [], []
         for position, frame in enumerate(frames):
             for index, person in enumerate(frame.people):
                 if person.unusable_reason is None and person.shoulder_px is not None and person.ankle_px is not None:
                     tops.append(person.shoulder_px)
                     bottoms.append(person.ankle_px)
                     owners.append((position, index))
-        return cls(np.array(tops, dtype=float).reshape(-1, 2), np.array(bottoms, dtype=float).reshape(-1, 2), owners)
+                    appearance.append(person.appearance)
+        return cls(
+            np.array(tops, dtype=float).reshape(-1, 2),
+            np.array(bottoms, dtype=float).reshape(-1, 2),
+            owners,
+            appearance,
+        )
 
     def __len__(self) -> int:
         return len(self.owners)

@@ -177,6 +177,7 @@ def calibrate_frames(
         SolveOptions(distortion=options.distortion),
         cap=options.sample_cap,
         times_s=None if any(t is None for t in times) else np.array(times, dtype=float),
+        appearance=evidence.appearance,
     )
     return evidence, solve
 

@@ -43,7 +43,8 @@ class EvidenceSample:
     time of each one's frame (seconds from the earliest), so the solve can link one person's observations.
 
     `queries` and `rows_read` show the sampling's cost: rows_read stays near len(self) however much is stored
-    (the frame times are one primary-key lookup per TIMES_CHUNK observations on top).
+    (the frame times and the appearance descriptors are one primary-key lookup each per TIMES_CHUNK observations
+    on top).
     """
 
     observation_ids: list[int]
@@ -51,6 +52,8 @@ class EvidenceSample:
     tops_px: np.ndarray
     bottoms_px: np.ndarray
     times_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    appearance: list[bytes | None] = field(default_factory=list)
+    """Each observation's appearance descriptor (service.geometry.appearance), None for posted keypoints."""
     queries: int = 0
     rows_read: int = 0
 
@@ -183,6 +186,19 @@ def frame_times_s(session: Session, observation_ids: list[int]) -> np.ndarray:
     return np.array([(stamps[oid] - first).total_seconds() for oid in observation_ids], dtype=float)
 
 
+def appearance_descriptors(session: Session, observation_ids: list[int]) -> list[bytes | None]:
+    """Each observation's appearance descriptor (None where it has none), by primary-key lookups.
+
+    Read apart from the sample's index scans: the descriptors are not in the sampling index, and reading them
+    there would take every row of a cell page from the table, for a column only the linking needs."""
+    found: dict[int, bytes | None] = {}
+    for start in range(0, len(observation_ids), TIMES_CHUNK):
+        chunk = observation_ids[start : start + TIMES_CHUNK]
+        stmt = select(Observation.id, Observation.appearance).where(Observation.id.in_(chunk))
+        found.update((int(oid), None if blob is None else bytes(blob)) for oid, blob in session.execute(stmt))
+    return [found.get(oid) for oid in observation_ids]
+
+
 def sample_evidence(
     session: Session, camera_id: str, *, cap: int, seed: int = 0, epoch: int | None = None
 ) -> EvidenceSample:
@@ -252,6 +268,7 @@ def sample_evidence(
         tops_px=tops,
         bottoms_px=bottoms,
         times_s=times_s,
+        appearance=appearance_descriptors(session, ids),
         queries=queries,
         rows_read=rows_read,
     )

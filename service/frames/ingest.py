@@ -128,6 +128,7 @@ def _observation_rows(camera: Camera, frame_id: uuid.UUID, people: Sequence[Pers
                 "box_right_px": box[2],
                 "box_bottom_px": box[3],
                 "detection_score": person.detection_score,
+                "appearance": person.appearance,
                 "usable": reason is None,
                 "unusable_reason": reason,
                 "cell": cell,

@@ -146,7 +146,7 @@ def person_from_keypoints(
 
 def person_from_detection(person: DetectedPerson, image_size_px: tuple[int, int]) -> PersonIn:
     """A person the pose model found, as the store's row: centres from trusted keypoints, the posture's verdict,
-    the raw keypoints (kept for re-analysis) and the detector's box and score."""
+    the raw keypoints (kept for re-analysis), the detector's box and score, and the appearance descriptor."""
     keypoints = person.coco_keypoints()
     row = person_from_keypoints(keypoints, image_size_px)
     if person.keypoint_trusted is not None:
@@ -160,7 +160,12 @@ def person_from_detection(person: DetectedPerson, image_size_px: tuple[int, int]
         elif person.posture == "partial":
             reason = PARTIAL_REASON
         row = replace(row, shoulder_px=shoulder, ankle_px=ankle, unusable_reason=reason)
-    return replace(row, box_px=tuple(float(v) for v in person.box_xyxy_px), detection_score=person.detection_score)
+    return replace(
+        row,
+        box_px=tuple(float(v) for v in person.box_xyxy_px),
+        detection_score=person.detection_score,
+        appearance=person.appearance,
+    )
 
 
 def box_bottom_problem(

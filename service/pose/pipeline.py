@@ -24,7 +24,8 @@ from typing import TYPE_CHECKING, Final
 
 import numpy as np
 
-from .assess import Assessment, assess_frame
+from .appearance import appearance_descriptor
+from .assess import FRONT_MARGIN, Assessment, assess_frame
 from .detector import DEFAULT_INPUT_PX, DEFAULT_SCORE_THRESHOLD, Detections, PersonDetector, RegionTimes
 from .model_files import POSE_INPUT_PX, PoseChoice, resolve_choice
 from .movenet import CropMode, MoveNet, PoseOutput, crop_window, extract_crop, read_people
@@ -159,6 +160,10 @@ class TopDownPose:
             poses, reread, kept = self._read_hidden(image, boxes, models, poses, assessments)
             if kept:
                 assessments = assess_frame(boxes, poses.keypoints_px, poses.scores, image.shape[0])
+        appearances = [
+            _appearance(image, boxes, index, poses) if assessment.posture == "standing" else None
+            for index, assessment in enumerate(assessments)
+        ]
         self.last_times = self._stage_times(times, time.perf_counter() - start, time.process_time() - start_cpu)
         self.last_times.people = len(boxes)
         self.last_times.reread_people, self.last_times.reread_kept = reread, kept
@@ -172,9 +177,17 @@ class TopDownPose:
                 keypoint_trusted=assessment.trusted,
                 posture=assessment.posture,
                 pose_model=model,
+                appearance=appearance,
             )
-            for box, score, keypoints, scores, assessment, model in zip(
-                boxes, detections.scores, poses.keypoints_px, poses.scores, assessments, models, strict=True
+            for box, score, keypoints, scores, assessment, model, appearance in zip(
+                boxes,
+                detections.scores,
+                poses.keypoints_px,
+                poses.scores,
+                assessments,
+                models,
+                appearances,
+                strict=True,
             )
         ]
 
@@ -267,3 +280,12 @@ def load_pose_estimator(settings: Settings) -> TopDownPose:
         settings.inference_threads,
         settings.pose_runtime,
     )
+
+
+def _appearance(image: np.ndarray, boxes: np.ndarray, index: int, poses: PoseOutput) -> bytes | None:
+    """Person `index`'s appearance descriptor, leaving out the boxes of the people in front of them (assess.py's
+    rule: a box reaching lower in the frame by FRONT_MARGIN of their height)."""
+    box = boxes[index]
+    front = boxes[:, 3] >= box[3] + FRONT_MARGIN * (box[3] - box[1])
+    front[index] = False
+    return appearance_descriptor(image, poses.keypoints_px[index], poses.scores[index], box, boxes[front])

@@ -43,6 +43,10 @@ class DetectedPerson:
     trusted: not placed)."""
     pose_model: str = ""
     """Which pose model read this person (the pipeline picks Thunder or Lightning by the person's size)."""
+    appearance: bytes | None = None
+    """What they look like (service.geometry.appearance: colour histograms of torso and legs, 128 bytes), for
+    `standing` people: it lets calibration link one person across frames seconds apart. None for others, or when
+    too little of the body was seen."""
 
     def coco_keypoints(self) -> list[list[float]]:
         """`[[x, y, score] x 17]`: the shape the keypoint API accepts and the store keeps."""

@@ -277,6 +277,9 @@ class Observation(Base):
     box_right_px: Mapped[float | None]
     box_bottom_px: Mapped[float | None]
     detection_score: Mapped[float | None]
+    # What the person looks like (service.geometry.appearance, 128 bytes), for standing people found in images:
+    # calibration links one person across frames seconds apart by it. None for posted keypoints.
+    appearance: Mapped[bytes | None] = mapped_column(LargeBinary)
     usable: Mapped[bool] = mapped_column(Boolean)
     unusable_reason: Mapped[str | None] = mapped_column(String(REASON_MAX_LENGTH))
     cell: Mapped[int | None] = mapped_column(Integer)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections import Counter
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -14,10 +15,12 @@ from service.calibration.evidence import (
     _CellCursor,
     _page_parameters,
     _round_statement,
+    appearance_descriptors,
     key_new_evidence,
     sample_evidence,
     sample_key,
 )
+from service.geometry.appearance import DESCRIPTOR_BYTES
 from service.geometry.evidence import SAMPLE_GRID, balanced_sample, grid_cells
 from service.store.models import Observation
 from tests.support.store import (
@@ -221,3 +224,22 @@ def test_the_stored_cells_are_the_grids() -> None:
     (check,) = [c for c in Observation.__table__.constraints if str(c.name).endswith("cell_on_grid")]
     assert f"cell < {GRID_CELLS}" in str(check.sqltext)  # type: ignore[attr-defined]
     assert GRID_CELLS == SAMPLE_GRID[0] * SAMPLE_GRID[1]
+
+
+def test_the_sample_carries_each_persons_appearance_and_none_for_posted_keypoints(session: Session) -> None:
+    add_camera(session, "cam-1")
+    looks = [bytes([k]) * DESCRIPTOR_BYTES for k in range(1, 4)]
+    add_frame(
+        session,
+        "cam-1",
+        [replace(person_in_cell(cell), appearance=look) for cell, look in zip((3, 9, 40), looks, strict=True)],
+    )
+    add_frame(session, "cam-1", [person_in_cell(20)])  # posted as keypoints: no appearance
+    session.commit()
+    key_everyone(session, "cam-1")
+    sample = sample_evidence(session, "cam-1", cap=50)
+    by_id = dict(zip(sample.observation_ids, sample.appearance, strict=True))
+    stored = dict(session.execute(select(Observation.id, Observation.appearance)).all())
+    assert len(by_id) == 4 and by_id == {oid: (None if blob is None else bytes(blob)) for oid, blob in stored.items()}
+    assert sorted(look for look in by_id.values() if look is not None) == looks
+    assert appearance_descriptors(session, []) == []
