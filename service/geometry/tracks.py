@@ -339,16 +339,26 @@ class _LongGaps:
         pairs = np.nonzero(ok)
         if not len(pairs[0]):
             return cost
-        # One distance matrix for the frame (every chain's tail against every arriving track's head), then medians.
-        tails, heads = [chain[1] for chain in chains], [track[1] for track in arriving]
-        tail_at = np.cumsum([0] + [len(tail) for tail in tails])
-        head_at = np.cumsum([0] + [len(head) for head in heads])
-        distance = appearance_distances(
-            self.roots[[i for tail in tails for i in tail]], self.roots[[i for head in heads for i in head]]
-        )
-        for r, c in zip(*pairs, strict=True):
-            if tails[r] and heads[c]:
-                median = float(np.median(distance[tail_at[r] : tail_at[r + 1], head_at[c] : head_at[c + 1]]))
-                if median <= self.max_distance:
-                    cost[r, c] = median
+        # One distance matrix for the frame: every chain's tail against every arriving track's head, padded to
+        # APPEARANCE_SIGHTINGS each (padding is NaN), then the median of each gated pair's block at once.
+        tails = _padded([chain[1] for chain in chains])
+        heads = _padded([track[1] for track in arriving])
+        distance = appearance_distances(self.roots[tails.reshape(-1)], self.roots[heads.reshape(-1)])
+        distance[tails.reshape(-1) < 0, :] = np.nan
+        distance[:, heads.reshape(-1) < 0] = np.nan
+        blocks = distance.reshape(len(chains), APPEARANCE_SIGHTINGS, len(arriving), APPEARANCE_SIGHTINGS)
+        gated = blocks.transpose(0, 2, 1, 3)[pairs].reshape(len(pairs[0]), -1)
+        described = ~np.all(np.isnan(gated), axis=1)
+        median = np.full(len(gated), np.inf)
+        median[described] = np.nanmedian(gated[described], axis=1)
+        within = median <= self.max_distance
+        cost[pairs[0][within], pairs[1][within]] = median[within]
         return cost
+
+
+def _padded(sightings: list[list[int]]) -> np.ndarray:
+    """(len, APPEARANCE_SIGHTINGS) observation indices, -1 where a list is shorter."""
+    out = np.full((len(sightings), APPEARANCE_SIGHTINGS), -1)
+    for row, indices in enumerate(sightings):
+        out[row, : len(indices)] = indices
+    return out
