@@ -31,7 +31,7 @@ from .model_files import POSE_INPUT_PX, PoseChoice, resolve_choice
 from .movenet import CropMode, MoveNet, PoseOutput, crop_window, extract_crop, read_people
 from .occlusion import accept, needs_reading
 from .regions import UNCALIBRATED_SCALES, Region, calibrated_plan, plan_cost, uncalibrated_plan, zoom_regions
-from .sessions import PoseRuntime, native_bf16, resolve_runtime
+from .sessions import PoseRuntime, native_bf16, resolve_runtime, thread_pool
 from .types import DetectedPerson
 
 if TYPE_CHECKING:
@@ -160,10 +160,12 @@ class TopDownPose:
             poses, reread, kept = self._read_hidden(image, boxes, models, poses, assessments)
             if kept:
                 assessments = assess_frame(boxes, poses.keypoints_px, poses.scores, image.shape[0])
-        appearances = [
-            _appearance(image, boxes, index, poses) if assessment.posture == "standing" else None
-            for index, assessment in enumerate(assessments)
-        ]
+        # Descriptors for the calibration evidence only, side by side (OpenCV releases the interpreter's lock).
+        standing = [k for k, assessment in enumerate(assessments) if assessment.posture == "standing"]
+        described = thread_pool(self.detector.workers).map(lambda k: _appearance(image, boxes, k, poses), standing)
+        appearances: list[bytes | None] = [None] * len(boxes)
+        for k, descriptor in zip(standing, described, strict=True):
+            appearances[k] = descriptor
         self.last_times = self._stage_times(times, time.perf_counter() - start, time.process_time() - start_cpu)
         self.last_times.people = len(boxes)
         self.last_times.reread_people, self.last_times.reread_kept = reread, kept
