@@ -57,6 +57,9 @@ class PersonIn:
     appearance: bytes | None = None
     """What the person looks like (service.geometry.appearance), for linking them across frames seconds apart;
     only from the image pipeline (posted keypoints carry none)."""
+    track_id: str | None = None
+    """The client's id for this person across the camera's frames (from its tracker): one id, one individual for
+    calibration. Only posted keypoint frames carry one."""
 
 
 class StoredCentres(Protocol):

@@ -43,8 +43,8 @@ class EvidenceSample:
     time of each one's frame (seconds from the earliest), so the solve can link one person's observations.
 
     `queries` and `rows_read` show the sampling's cost: rows_read stays near len(self) however much is stored
-    (the frame times and the appearance descriptors are one primary-key lookup each per TIMES_CHUNK observations
-    on top).
+    (the frame times, and the appearance descriptors with the client track ids, are one primary-key lookup each
+    per TIMES_CHUNK observations on top).
     """
 
     observation_ids: list[int]
@@ -54,6 +54,8 @@ class EvidenceSample:
     times_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     appearance: list[bytes | None] = field(default_factory=list)
     """Each observation's appearance descriptor (service.geometry.appearance), None for posted keypoints."""
+    track_ids: list[str | None] = field(default_factory=list)
+    """Each observation's client track id (service.frames.schemas.PersonObservation), None where none was posted."""
     queries: int = 0
     rows_read: int = 0
 
@@ -186,17 +188,24 @@ def frame_times_s(session: Session, observation_ids: list[int]) -> np.ndarray:
     return np.array([(stamps[oid] - first).total_seconds() for oid in observation_ids], dtype=float)
 
 
-def appearance_descriptors(session: Session, observation_ids: list[int]) -> list[bytes | None]:
-    """Each observation's appearance descriptor (None where it has none), by primary-key lookups.
+def identities(session: Session, observation_ids: list[int]) -> tuple[list[bytes | None], list[str | None]]:
+    """Each observation's appearance descriptor and client track id (None where it has none), by primary-key
+    lookups: what the linking needs to tell who is who.
 
-    Read apart from the sample's index scans: the descriptors are not in the sampling index, and reading them
-    there would take every row of a cell page from the table, for a column only the linking needs."""
-    found: dict[int, bytes | None] = {}
+    Read apart from the sample's index scans: neither column is in the sampling index, and reading them there
+    would take every row of a cell page from the table, for columns only the linking needs. Read together, as
+    each row holds both: an image camera's people have descriptors, a keypoint client's may have track ids."""
+    found: dict[int, tuple[bytes | None, str | None]] = {}
     for start in range(0, len(observation_ids), TIMES_CHUNK):
         chunk = observation_ids[start : start + TIMES_CHUNK]
-        stmt = select(Observation.id, Observation.appearance).where(Observation.id.in_(chunk))
-        found.update((int(oid), None if blob is None else bytes(blob)) for oid, blob in session.execute(stmt))
-    return [found.get(oid) for oid in observation_ids]
+        stmt = select(Observation.id, Observation.appearance, Observation.client_track_id).where(
+            Observation.id.in_(chunk)
+        )
+        found.update(
+            (int(oid), (None if blob is None else bytes(blob), track)) for oid, blob, track in session.execute(stmt)
+        )
+    rows = [found.get(oid, (None, None)) for oid in observation_ids]
+    return [blob for blob, _ in rows], [track for _, track in rows]
 
 
 def sample_evidence(
@@ -262,13 +271,15 @@ def sample_evidence(
     times_s = frame_times_s(session, ids)
     tops = np.array([(r.shoulder_x_px, r.shoulder_y_px) for r in chosen], dtype=float).reshape(-1, 2)
     bottoms = np.array([(r.ankle_x_px, r.ankle_y_px) for r in chosen], dtype=float).reshape(-1, 2)
+    appearance, track_ids = identities(session, ids)
     return EvidenceSample(
         observation_ids=ids,
         cells=[int(r.cell) for r in chosen],
         tops_px=tops,
         bottoms_px=bottoms,
         times_s=times_s,
-        appearance=appearance_descriptors(session, ids),
+        appearance=appearance,
+        track_ids=track_ids,
         queries=queries,
         rows_read=rows_read,
     )

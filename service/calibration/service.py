@@ -252,10 +252,15 @@ def solve_camera(settings: Settings, dispatcher: RedisDispatcher, camera_id: str
         solve = EvidenceSolve(np.arange(len(sample)), None, f"the camera's settings: {problem_error}")
     else:
         # The sample is already capped and balanced by the store; repeats (still people, a mannequin) count once,
-        # and the frame times (with the appearance, across gaps of seconds) link one walker's observations into
-        # one individual with one height.
+        # and the frame times (with the appearance or the client's track ids, across gaps of seconds) link one
+        # walker's observations into one individual with one height.
         solve = solve_evidence(
-            sample.tops_px, sample.bottoms_px, problem, times_s=sample.times_s, appearance=sample.appearance
+            sample.tops_px,
+            sample.bottoms_px,
+            problem,
+            times_s=sample.times_s,
+            appearance=sample.appearance,
+            client_tracks=sample.track_ids,
         )
     people_used = solve.people_used
     duration_s = time.perf_counter() - started

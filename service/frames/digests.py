@@ -1,8 +1,12 @@
 """What "the same content" means for a client frame id (README, Idempotency): a frame's digest, stored with it.
 
 A keypoint frame is the same when it has the same instant to the microsecond and the same people in the same order,
-each as stored: keypoints at the float32 precision they are packed with, centres as float64. How the JSON spelled
-the numbers (1 or 1.0, 1e2 or 100) and the key order do not matter. An image frame is the same when its bytes are.
+each as stored: keypoints at the float32 precision they are packed with, centres as float64, and the same track id
+(a retry that calls a person by another track_id would link them to another individual: other content). How the
+JSON spelled the numbers (1 or 1.0, 1e2 or 100) and the key order do not matter. An image frame is the same when
+its bytes are.
+
+A person without a track id adds nothing for it, so frames stored before track ids keep their digests.
 """
 
 from __future__ import annotations
@@ -45,6 +49,10 @@ def keypoint_frame_digest(
                     *(ankle or (0.0, 0.0)),
                 )
             )
+        if person.track_id is not None:
+            # After the person's fixed-length points, and tagged: no other person's bytes can read as a track id.
+            track = person.track_id.encode()
+            digest.update(b"t" + len(track).to_bytes(1, "little") + track)
     return digest.hexdigest()
 
 

@@ -129,6 +129,7 @@ def _observation_rows(camera: Camera, frame_id: uuid.UUID, people: Sequence[Pers
                 "box_bottom_px": box[3],
                 "detection_score": person.detection_score,
                 "appearance": person.appearance,
+                "client_track_id": person.track_id,
                 "usable": reason is None,
                 "unusable_reason": reason,
                 "cell": cell,

@@ -132,15 +132,21 @@ def evidence_problem(shoulder: Point | None, ankle: Point | None, image_size_px:
 
 
 def person_from_keypoints(
-    keypoints: Sequence[Sequence[float]], image_size_px: tuple[int, int], *, min_score: float = MIN_SCORE
+    keypoints: Sequence[Sequence[float]],
+    image_size_px: tuple[int, int],
+    *,
+    min_score: float = MIN_SCORE,
+    track_id: str | None = None,
 ) -> PersonIn:
-    """A COCO-17 person as the store's row: centres, raw keypoints (kept for re-analysis) and the verdict."""
+    """A COCO-17 person as the store's row: centres, raw keypoints (kept for re-analysis), the verdict and the
+    client's track id, if it gave one."""
     shoulder, ankle = coco_centres(keypoints, min_score=min_score)
     return PersonIn(
         shoulder_px=shoulder,
         ankle_px=ankle,
         keypoints=keypoints,
         unusable_reason=evidence_problem(shoulder, ankle, image_size_px),
+        track_id=track_id,
     )
 
 
@@ -224,14 +230,18 @@ def as_static(person: PersonIn) -> PersonIn:
     return replace(person, unusable_reason=reason)
 
 
-def person_from_centres(shoulder: Point | None, ankle: Point | None, image_size_px: tuple[int, int]) -> PersonIn:
-    """A person posted as explicit centres (ankle None when hidden) as the store's row, with the verdict."""
+def person_from_centres(
+    shoulder: Point | None, ankle: Point | None, image_size_px: tuple[int, int], *, track_id: str | None = None
+) -> PersonIn:
+    """A person posted as explicit centres (ankle None when hidden) as the store's row, with the verdict and the
+    client's track id, if it gave one."""
     shoulder_px = None if shoulder is None else (float(shoulder[0]), float(shoulder[1]))
     ankle_px = None if ankle is None else (float(ankle[0]), float(ankle[1]))
     return PersonIn(
         shoulder_px=shoulder_px,
         ankle_px=ankle_px,
         unusable_reason=evidence_problem(shoulder_px, ankle_px, image_size_px),
+        track_id=track_id,
     )
 
 

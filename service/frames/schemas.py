@@ -7,9 +7,10 @@ from datetime import datetime
 from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic_core import PydanticCustomError
 
 from service.cameras.schemas import MAX_IMAGE_SIDE_PX
-from service.http.schemas import CLIENT_FRAME_ID_PATTERN, Score, StrictModel, Timestamp
+from service.http.schemas import CLIENT_FRAME_ID_PATTERN, CLIENT_TRACK_ID_PATTERN, Score, StrictModel, Timestamp
 
 COCO_KEYPOINTS = 17
 # Every pixel coordinate, whatever its score: finite and within ten times the largest image side of the origin. The
@@ -52,6 +53,15 @@ class PersonObservation(StrictModel):
     ankle: PointPx | None = Field(
         default=None, description="Ankle centre [x_px, y_px] (centres form); null or absent when not visible."
     )
+    track_id: str | None = Field(
+        default=None,
+        pattern=CLIENT_TRACK_ID_PATTERN,
+        description="The client's id for this person across this camera's frames, e.g. from its tracker; sightings "
+        "with one track_id are one individual for calibration, whatever the time between them. Never give one id to "
+        "two people: a tracker whose numbering restarts should prefix its ids with its start time. Unique within a "
+        "frame. `/distances` ignores it.",
+        examples=["17", "2026-01-01T12:00:00Z:17"],
+    )
 
     @field_validator("keypoints")
     @classmethod
@@ -89,6 +99,22 @@ class KeypointFrame(StrictModel):
         description="The client's id for this frame: posting the same id again is a retry of the same frame.",
     )
     people: list[PersonObservation] = Field(description="The people detected in the frame (may be empty).")
+
+    @model_validator(mode="after")
+    def _one_person_per_track(self) -> KeypointFrame:
+        """Two people of one frame are never one individual: a repeated id is the client's mistake, and linking
+        on it would merge two people's heights."""
+        seen: dict[str, int] = {}
+        for index, person in enumerate(self.people):
+            if person.track_id is not None:
+                first = seen.setdefault(person.track_id, index)
+                if first != index:
+                    raise PydanticCustomError(
+                        "duplicate_track_id",
+                        "people {first} and {index} have the same track_id: one person per track in a frame",
+                        {"first": first, "index": index},
+                    )
+        return self
 
 
 FrameStatus = Literal["detecting", "pending", "done", "failed"]

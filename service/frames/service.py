@@ -89,13 +89,13 @@ def people_for_camera(people: Sequence[PersonObservation], camera: Camera, setti
             for k, (x, y, _score) in enumerate(person.keypoints):
                 if not (low_x <= x <= high_x and low_y <= y <= high_y):
                     far_outside([index, "keypoints", k], x, y)
-            rows.append(person_from_keypoints(person.keypoints, size))
+            rows.append(person_from_keypoints(person.keypoints, size, track_id=person.track_id))
         else:
             for name in ("shoulder", "ankle"):
                 point = getattr(person, name)
                 if point is not None and not (low_x <= point[0] <= high_x and low_y <= point[1] <= high_y):
                     far_outside([index, name], *point)
-            rows.append(person_from_centres(person.shoulder, person.ankle, size))
+            rows.append(person_from_centres(person.shoulder, person.ankle, size, track_id=person.track_id))
     if errors:
         fields = field_errors(errors)
         more = f" (and {len(fields) - 1} more)" if len(fields) > 1 else ""

@@ -153,26 +153,31 @@ def solve_evidence(
     cap: int | None = None,
     times_s: np.ndarray | None = None,
     appearance: Sequence[bytes | None] | None = None,
+    client_tracks: Sequence[str | None] | None = None,
 ) -> EvidenceSolve:
     """Calibrate once on usable observations pooled from many frames: the one path from evidence to a camera.
 
     With `times_s` (each observation's frame time), observations are first linked into individuals
     (service.geometry.tracks), so one person seen in many frames has one height; `appearance` (each observation's
-    descriptor or None) also links them across gaps of seconds (a camera posting an image every few seconds).
-    Repeats are collapsed (see
-    the module docstring), then, with `cap`, a spatially balanced sample of at most `cap` is drawn from what
-    remains (`balanced_sample`, seeded by options.seed), and `calibrate` runs on it. A solve that cannot
-    produce a camera returns its reason instead of raising, because callers record failures with the
-    evidence they were given (the calibration worker keeps them in the history; `posemetry analyze` reports
-    them).
+    descriptor or None) also links them across gaps of seconds (a camera posting an image every few seconds), and
+    `client_tracks` (each observation's client track id or None: a keypoint client's tracker) makes each id one
+    individual, whatever the gaps. Repeats are collapsed (see the module docstring), then, with `cap`, a
+    spatially balanced sample of at most `cap` is drawn from what remains (`balanced_sample`, seeded by
+    options.seed), and `calibrate` runs on it. A solve that cannot produce a camera returns its reason instead of
+    raising, because callers record failures with the evidence they were given (the calibration worker keeps them
+    in the history; `posemetry analyze` reports them).
     """
     options = SolveOptions() if options is None else options
     tops = np.asarray(tops_px, dtype=float).reshape(-1, 2)
     bottoms = np.asarray(bottoms_px, dtype=float).reshape(-1, 2)
+    if times_s is None and client_tracks is not None:
+        raise ValueError("client_tracks link observations with their frame times: pass times_s too")
     tracks = (
         None
         if times_s is None
-        else link_tracks(times_s, tops, bottoms, height_m=problem.height_m, appearance=appearance)
+        else link_tracks(
+            times_s, tops, bottoms, height_m=problem.height_m, appearance=appearance, client_tracks=client_tracks
+        )
     )
     image_size_px = problem.image_size_px
     used = collapse_repeats(tops, bottoms, repeat_radius_px(image_size_px))

@@ -51,6 +51,13 @@ that share a frame time. Town Centre's 22 clip frames posted 2 s apart: the solv
 "individuals" before, 43 after; 99.2 % of the linked pairs are one annotated person (the two wrong ones: two
 people in dark coats walking together; docs/benchmarks/camera-model.md). People without descriptors (posted
 keypoints) are linked by motion alone, exactly as without the stage.
+
+Most camera systems run a tracker and know which detection is which person: a client posting keypoints may give
+each person its tracker's id (`client_tracks`). Those ids are the client's authority, whatever the time between
+sightings: observations sharing an id are one individual (their tracks are united at the end), and neither motion
+nor appearance links an observation with an id to a track or chain holding another id. Observations without an id
+link as before, to each other and to tracks with an id; without any id the labels are exactly those of linking
+without ids. Ids are one camera's and one calibration epoch's, as a sample is.
 """
 
 from __future__ import annotations
@@ -111,13 +118,15 @@ def link_tracks(
     appearance: Sequence[bytes | None] | None = None,
     max_long_gap_s: float = LONG_MAX_GAP_S,
     max_appearance_distance: float = MAX_APPEARANCE_DISTANCE,
+    client_tracks: Sequence[str | None] | None = None,
 ) -> np.ndarray:
     """(n,) integer track labels (0, 1, ...): equal labels are the same person seen at different times.
 
     times_s gives each observation's frame time; observations with equal times are in one frame and never
     linked to each other. Non-finite rows get a track of their own. `appearance`, each observation's descriptor
     (service.geometry.appearance) or None, enables the long-gap stage; without any descriptor the labels are
-    those of linking by motion alone.
+    those of linking by motion alone. `client_tracks`, each observation's client track id or None, unites each
+    id's observations and keeps different ids apart (module docstring); without any id it changes nothing.
     """
     times = np.asarray(times_s, dtype=np.float64).reshape(-1)
     tops = np.asarray(tops_px, dtype=np.float64).reshape(-1, 2)
@@ -129,9 +138,11 @@ def link_tracks(
     length = np.hypot(*segment.T)
     valid = np.isfinite(times) & np.all(np.isfinite(tops), 1) & np.all(np.isfinite(bottoms), 1) & (length > 0)
     gates = _Gates(times, bottoms, segment, length, height_m, max_speed_m_s, max_size_ratio)
+    client = _client_codes(client_tracks, n)
     labels = np.full(n, -1)
     members: list[list[int]] = []  # per track: its observations in time order
     last_time = np.full(n, -np.inf)  # per track (at most n): its latest observation's time
+    track_client = np.full(n, -1)  # per track: the code of its client id, -1 while it has none
     for t in np.unique(times[valid]):
         current = np.flatnonzero(valid & (times == t))
         assigned = np.zeros(len(current), dtype=bool)
@@ -139,6 +150,8 @@ def link_tracks(
         live = np.flatnonzero((since > 0.0) & (since <= max_gap_s + _TIME_TOLERANCE_S))
         if len(live):
             cost = gates.costs([members[k] for k in live], current)
+            if client is not None:
+                cost[_other_clients(track_client[live], client[current])] = np.inf
             rows, cols = linear_sum_assignment(np.where(np.isfinite(cost), cost, 1e9))
             for r, c in zip(rows, cols, strict=True):
                 if np.isfinite(cost[r, c]):
@@ -146,9 +159,13 @@ def link_tracks(
                     members[live[r]].append(int(current[c]))
                     last_time[live[r]] = t
                     assigned[c] = True
+                    if client is not None:
+                        track_client[live[r]] = max(track_client[live[r]], client[current[c]])
         for c in np.flatnonzero(~assigned):
             labels[current[c]] = len(members)
             last_time[len(members)] = t
+            if client is not None:
+                track_client[len(members)] = client[current[c]]
             members.append([int(current[c])])
     unlabelled = labels < 0
     labels[unlabelled] = len(members) + np.arange(int(unlabelled.sum()))
@@ -158,8 +175,47 @@ def link_tracks(
         roots, described = decode_descriptors(list(appearance))
         if described.any():
             joins = _LongGaps(gates, roots, described, max_long_gap_s, max_appearance_distance)
-            labels = joins.join([track for track in members if described[track].any()], labels, max_gap_s)
+            joinable = [k for k, track in enumerate(members) if described[track].any()]
+            labels = joins.join(
+                [members[k] for k in joinable],
+                labels,
+                max_gap_s,
+                None if client is None else track_client[joinable],
+            )
+    if client is not None:
+        labels = _unite_clients(labels, np.where(valid, client, -1))
     return labels
+
+
+def _client_codes(client_tracks: Sequence[str | None] | None, n: int) -> np.ndarray | None:
+    """(n,) a code per distinct client id (0, 1, ...), -1 where none; None when no observation has an id, so that
+    linking without ids takes exactly the path it took before ids existed."""
+    if client_tracks is None:
+        return None
+    if len(client_tracks) != n:
+        raise ValueError(f"client_tracks must hold one id (or None) per observation ({n})")
+    codes: dict[str, int] = {}
+    client = np.array([-1 if key is None else codes.setdefault(key, len(codes)) for key in client_tracks])
+    return client if codes else None
+
+
+def _other_clients(tracks: np.ndarray, observations: np.ndarray) -> np.ndarray:
+    """(tracks, observations) True where both hold a client id and the ids differ: a link the client forbids."""
+    return (tracks[:, None] >= 0) & (observations[None, :] >= 0) & (tracks[:, None] != observations[None, :])
+
+
+def _unite_clients(labels: np.ndarray, client: np.ndarray) -> np.ndarray:
+    """`labels` with every label holding a client id merged with the others holding it, renumbered 0, 1, ...
+
+    Linking never puts two ids under one label, so each label maps to at most one id and the union is a lookup."""
+    coded = np.flatnonzero(client >= 0)
+    if not len(coded):
+        return labels
+    root = np.arange(int(labels.max()) + 1)
+    first: dict[int, int] = {}
+    for label, code in zip(labels[coded].tolist(), client[coded].tolist(), strict=True):
+        root[label] = first.setdefault(code, label)
+    return np.unique(root[labels], return_inverse=True)[1].reshape(-1)
 
 
 class _Gates:
@@ -274,17 +330,21 @@ class _LongGaps:
         self.gates, self.roots, self.described = gates, roots, described
         self.max_long_gap_s, self.max_distance = max_long_gap_s, max_appearance_distance
 
-    def join(self, tracks: list[list[int]], labels: np.ndarray, min_gap_s: float) -> np.ndarray:
+    def join(
+        self, tracks: list[list[int]], labels: np.ndarray, min_gap_s: float, clients: np.ndarray | None = None
+    ) -> np.ndarray:
         """`labels` with tracks (lists of observations in time order, each with a descriptor) joined into chains.
 
         Tracks are taken in order of their first time; those starting together are matched one-to-one
         (Hungarian, by appearance distance) to the chains that ended more than `min_gap_s` and at most
-        max_long_gap_s before, so a chain never holds two tracks that share a frame time. Labels are renumbered
-        only when something was joined."""
+        max_long_gap_s before, so a chain never holds two tracks that share a frame time. `clients`, each track's
+        client id code (-1: none), keeps tracks of different ids in different chains. Labels are renumbered only
+        when something was joined."""
         if len(tracks) < 2:
             return labels
         times, described = self.gates.times, self.described
         chain_of = list(range(len(tracks)))  # track -> its chain (the index of the chain's first track)
+        chain_client = np.full(len(tracks), -1) if clients is None else clients.copy()  # per chain head
         # Open chains: first track -> (last observation, the last APPEARANCE_SIGHTINGS described observations).
         chains: dict[int, tuple[int, list[int]]] = {}
         ends = [(track[-1], [i for i in track if described[i]][-APPEARANCE_SIGHTINGS:]) for track in tracks]
@@ -298,6 +358,8 @@ class _LongGaps:
             heads = [h for h, (last, _) in chains.items() if t - times[last] > min_gap_s + _TIME_TOLERANCE_S]
             if heads:
                 cost = self._costs([chains[h] for h in heads], [beginnings[k] for k in arriving])
+                if clients is not None:
+                    cost[_other_clients(chain_client[heads], clients[arriving])] = np.inf
                 rows, cols = linear_sum_assignment(np.where(np.isfinite(cost), cost, 1e9))
                 for r, c in zip(rows, cols, strict=True):
                     if np.isfinite(cost[r, c]):
@@ -305,6 +367,7 @@ class _LongGaps:
                         tail = (chains[heads[r]][1] + ends[k][1])[-APPEARANCE_SIGHTINGS:]
                         chains[heads[r]] = (ends[k][0], tail)
                         chain_of[k] = heads[r]
+                        chain_client[heads[r]] = max(chain_client[heads[r]], chain_client[k])
                         joined = True
             for k in arriving:
                 if chain_of[k] == k:

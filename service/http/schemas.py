@@ -20,6 +20,10 @@ from pydantic_core import PydanticCustomError
 
 CAMERA_ID_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$"
 CLIENT_FRAME_ID_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9._:-]{0,127}$"
+# A posted person's track id (service.frames.schemas.PersonObservation): a tracker's number, or one prefixed with the
+# tracker's start (`2026-01-01T12:00:00Z:17`), fits in 64.
+CLIENT_TRACK_ID_MAX_LENGTH = 64
+CLIENT_TRACK_ID_PATTERN = rf"^[A-Za-z0-9][A-Za-z0-9._:-]{{0,{CLIENT_TRACK_ID_MAX_LENGTH - 1}}}$"
 
 
 def _not_a_boolean(value: object) -> object:

@@ -66,6 +66,8 @@ from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 DEFAULT_DISTANCE_THRESHOLD_M = 1.8288
 CAMERA_ID_MAX_LENGTH = 128
 CLIENT_FRAME_ID_MAX_LENGTH = 128
+# service.http.schemas.CLIENT_TRACK_ID_MAX_LENGTH (not imported: the store does not depend on the API).
+CLIENT_TRACK_ID_MAX_LENGTH = 64
 REASON_MAX_LENGTH = 200
 API_KEY_ID_LENGTH = 12
 API_KEY_NAME_MAX_LENGTH = 100
@@ -280,6 +282,9 @@ class Observation(Base):
     # What the person looks like (service.geometry.appearance, 128 bytes), for standing people found in images:
     # calibration links one person across frames seconds apart by it. None for posted keypoints.
     appearance: Mapped[bytes | None] = mapped_column(LargeBinary)
+    # The client's track id of a posted person (service.frames.schemas.PersonObservation): calibration takes one id
+    # for one individual. Read by primary key with the sample only, so no index: ingest pays for the bytes alone.
+    client_track_id: Mapped[str | None] = mapped_column(String(CLIENT_TRACK_ID_MAX_LENGTH))
     usable: Mapped[bool] = mapped_column(Boolean)
     unusable_reason: Mapped[str | None] = mapped_column(String(REASON_MAX_LENGTH))
     cell: Mapped[int | None] = mapped_column(Integer)

@@ -15,7 +15,7 @@ from service.calibration.evidence import (
     _CellCursor,
     _page_parameters,
     _round_statement,
-    appearance_descriptors,
+    identities,
     key_new_evidence,
     sample_evidence,
     sample_key,
@@ -242,4 +242,19 @@ def test_the_sample_carries_each_persons_appearance_and_none_for_posted_keypoint
     stored = dict(session.execute(select(Observation.id, Observation.appearance)).all())
     assert len(by_id) == 4 and by_id == {oid: (None if blob is None else bytes(blob)) for oid, blob in stored.items()}
     assert sorted(look for look in by_id.values() if look is not None) == looks
-    assert appearance_descriptors(session, []) == []
+    assert identities(session, []) == ([], [])
+
+
+def test_the_sample_carries_each_persons_client_track_id(session: Session) -> None:
+    """Track ids are read with the descriptors, in one primary-key lookup, and land on their own observations."""
+    add_camera(session, "cam-1")
+    add_frame(session, "cam-1", [replace(person_in_cell(3), track_id="a"), person_in_cell(9)])
+    add_frame(session, "cam-1", [replace(person_in_cell(40), track_id="b"), replace(person_in_cell(5), track_id="a")])
+    session.commit()
+    key_everyone(session, "cam-1")
+    sample = sample_evidence(session, "cam-1", cap=50)
+    by_id = dict(zip(sample.observation_ids, sample.track_ids, strict=True))
+    stored = dict(session.execute(select(Observation.id, Observation.client_track_id)).all())
+    assert len(by_id) == 4 and by_id == stored
+    assert sorted(track for track in by_id.values() if track is not None) == ["a", "a", "b"]
+    assert sample.appearance == [None] * 4

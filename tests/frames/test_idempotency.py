@@ -53,12 +53,22 @@ def test_a_true_retry_is_the_same_frame_however_the_json_spells_it(client: TestC
 
 @pytest.mark.parametrize(
     "change",
-    ["another person", "a moved keypoint", "a score", "a later timestamp", "centres for keypoints", "people reordered"],
+    [
+        "another person",
+        "a moved keypoint",
+        "a score",
+        "a later timestamp",
+        "centres for keypoints",
+        "people reordered",
+        "a track id given",
+        "another track id",
+    ],
 )
 def test_the_same_frame_id_with_other_content_is_409_naming_the_stored_frame(
     client: TestClient, camera: str, change: str
 ) -> None:
     people = standing(2)
+    people[1]["track_id"] = "7"
     first = post(client, camera, frame_body(people, frame_id="f-1"))
     assert first.status_code == 202
     other: dict[str, Any] = frame_body(json.loads(json.dumps(people)), frame_id="f-1")
@@ -70,6 +80,10 @@ def test_the_same_frame_id_with_other_content_is_409_naming_the_stored_frame(
         other["people"][0]["keypoints"][0][2] = 0.1
     elif change == "a later timestamp":
         other["timestamp"] = "2026-01-01T12:00:00.000001Z"
+    elif change == "a track id given":
+        other["people"][0]["track_id"] = "8"
+    elif change == "another track id":
+        other["people"][1]["track_id"] = "8"
     elif change == "centres for keypoints":
         other["people"][0] = {"shoulder": [300.0, 400.0], "ankle": [300.0, 700.0]}
     else:
