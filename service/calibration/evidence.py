@@ -43,8 +43,8 @@ class EvidenceSample:
     time of each one's frame (seconds from the earliest), so the solve can link one person's observations.
 
     `queries` and `rows_read` show the sampling's cost: rows_read stays near len(self) however much is stored
-    (the frame times, and the appearance descriptors with the client track ids, are one primary-key lookup each
-    per TIMES_CHUNK observations on top).
+    (the frame times, appearance descriptors and client track ids are one primary-key lookup per LINKS_CHUNK
+    observations on top: `observation_links`).
     """
 
     observation_ids: list[int]
@@ -167,45 +167,46 @@ def _page_parameters(index: int, cell: int, cursor: _CellCursor, n: int) -> dict
     return {f"{name}_{index}": value for name, value in values.items()}
 
 
-# Observation ids per statement when reading their frames' times: well under SQLite's bound-parameter limit.
-TIMES_CHUNK = 900
+# Observation ids per statement when reading what links them: well under SQLite's bound-parameter limit.
+LINKS_CHUNK = 900
 
 
-def frame_times_s(session: Session, observation_ids: list[int]) -> np.ndarray:
-    """Each observation's frame capture time in seconds from the earliest of them (primary-key lookups)."""
-    stamps: dict[int, datetime] = {}
-    for start in range(0, len(observation_ids), TIMES_CHUNK):
-        chunk = observation_ids[start : start + TIMES_CHUNK]
+@dataclass(frozen=True)
+class Links:
+    """What tells a sample's observations apart as individuals (service.geometry.tracks), in the sample's order."""
+
+    times_s: np.ndarray
+    """Each observation's frame capture time, seconds from the earliest of them."""
+    appearance: list[bytes | None]
+    """Appearance descriptors (service.geometry.appearance): people found in images; None for posted keypoints."""
+    track_ids: list[str | None]
+    """Client track ids (service.frames.schemas.PersonObservation), None where none was posted."""
+
+
+def observation_links(session: Session, observation_ids: list[int]) -> Links:
+    """Frame times, appearance descriptors and client track ids of the observations, by primary-key lookups.
+
+    Read apart from the sample's index scans: none of them is in the sampling index, and reading them there would
+    take every row of a cell page from the table, for columns only the linking needs."""
+    found: dict[int, tuple[datetime, bytes | None, str | None]] = {}
+    for start in range(0, len(observation_ids), LINKS_CHUNK):
+        chunk = observation_ids[start : start + LINKS_CHUNK]
         stmt = (
-            select(Observation.id, Frame.timestamp)
+            select(Observation.id, Frame.timestamp, Observation.appearance, Observation.client_track_id)
             .join(Frame, Frame.id == Observation.frame_id)
             .where(Observation.id.in_(chunk))
         )
-        stamps.update((int(oid), stamp) for oid, stamp in session.execute(stmt))
-    if not stamps:
-        return np.zeros(len(observation_ids))
-    first = min(stamps.values())
-    return np.array([(stamps[oid] - first).total_seconds() for oid in observation_ids], dtype=float)
-
-
-def identities(session: Session, observation_ids: list[int]) -> tuple[list[bytes | None], list[str | None]]:
-    """Each observation's appearance descriptor and client track id (None where it has none), by primary-key
-    lookups: what the linking needs to tell who is who.
-
-    Read apart from the sample's index scans: neither column is in the sampling index, and reading them there
-    would take every row of a cell page from the table, for columns only the linking needs. Read together, as
-    each row holds both: an image camera's people have descriptors, a keypoint client's may have track ids."""
-    found: dict[int, tuple[bytes | None, str | None]] = {}
-    for start in range(0, len(observation_ids), TIMES_CHUNK):
-        chunk = observation_ids[start : start + TIMES_CHUNK]
-        stmt = select(Observation.id, Observation.appearance, Observation.client_track_id).where(
-            Observation.id.in_(chunk)
-        )
         found.update(
-            (int(oid), (None if blob is None else bytes(blob), track)) for oid, blob, track in session.execute(stmt)
+            (int(oid), (stamp, None if blob is None else bytes(blob), track))
+            for oid, stamp, blob, track in session.execute(stmt)
         )
-    rows = [found.get(oid, (None, None)) for oid in observation_ids]
-    return [blob for blob, _ in rows], [track for _, track in rows]
+    rows = [found[oid] for oid in observation_ids]
+    first = min((stamp for stamp, _, _ in rows), default=None)
+    return Links(
+        times_s=np.array([(stamp - first).total_seconds() for stamp, _, _ in rows], dtype=float),
+        appearance=[blob for _, blob, _ in rows],
+        track_ids=[track for _, _, track in rows],
+    )
 
 
 def sample_evidence(
@@ -268,18 +269,17 @@ def sample_evidence(
             if rank < len(cursors[cell].rows):
                 chosen.append(cursors[cell].rows[rank])
     ids = [int(r.id) for r in chosen]
-    times_s = frame_times_s(session, ids)
+    links = observation_links(session, ids)
     tops = np.array([(r.shoulder_x_px, r.shoulder_y_px) for r in chosen], dtype=float).reshape(-1, 2)
     bottoms = np.array([(r.ankle_x_px, r.ankle_y_px) for r in chosen], dtype=float).reshape(-1, 2)
-    appearance, track_ids = identities(session, ids)
     return EvidenceSample(
         observation_ids=ids,
         cells=[int(r.cell) for r in chosen],
         tops_px=tops,
         bottoms_px=bottoms,
-        times_s=times_s,
-        appearance=appearance,
-        track_ids=track_ids,
+        times_s=links.times_s,
+        appearance=links.appearance,
+        track_ids=links.track_ids,
         queries=queries,
         rows_read=rows_read,
     )

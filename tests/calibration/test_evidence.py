@@ -15,8 +15,8 @@ from service.calibration.evidence import (
     _CellCursor,
     _page_parameters,
     _round_statement,
-    identities,
     key_new_evidence,
+    observation_links,
     sample_evidence,
     sample_key,
 )
@@ -242,7 +242,8 @@ def test_the_sample_carries_each_persons_appearance_and_none_for_posted_keypoint
     stored = dict(session.execute(select(Observation.id, Observation.appearance)).all())
     assert len(by_id) == 4 and by_id == {oid: (None if blob is None else bytes(blob)) for oid, blob in stored.items()}
     assert sorted(look for look in by_id.values() if look is not None) == looks
-    assert identities(session, []) == ([], [])
+    empty = observation_links(session, [])
+    assert (len(empty.times_s), empty.appearance, empty.track_ids) == (0, [], [])
 
 
 def test_the_sample_carries_each_persons_client_track_id(session: Session) -> None:
