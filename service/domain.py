@@ -71,6 +71,13 @@ class StoredCentres(Protocol):
     ankle_y_px: float | None
     unusable_reason: str | None
     """Why the person is not calibration evidence (None: they are); measuring reads the posture from it."""
+    client_track_id: str | None
+    """The client's track id, as posted (None when none was): echoed with the person's result."""
+
+
+def track_id_of(person: PersonIn | StoredCentres) -> str | None:
+    """The client's track id of a person not yet stored, or of a stored one."""
+    return person.track_id if isinstance(person, PersonIn) else person.client_track_id
 
 
 def centres(person: PersonIn | StoredCentres) -> tuple[Point | None, Point | None]:

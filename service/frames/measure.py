@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import pydantic_core
 
-from service.domain import PersonIn, StoredCentres, ViolationIn, centres
+from service.domain import PersonIn, StoredCentres, ViolationIn, centres, track_id_of
 from service.frames.keypoints import BOX_REASON, PARTIAL_REASON, SEATED_REASON, STATIC_REASON
 from service.frames.schemas import FrameResult
 from service.geometry import Calibration, measure
@@ -142,9 +142,10 @@ def measure_people(
             "ground_m": ground_m if is_placed else None,
             "point_m": point_m if is_placed else None,
             "static": still,
+            "track_id": track_id_of(person),
         }
-        for index, (is_placed, ground_m, point_m, still) in enumerate(
-            zip(placed.tolist(), ground.tolist(), positions.tolist(), static, strict=True)
+        for index, (person, is_placed, ground_m, point_m, still) in enumerate(
+            zip(people, placed.tolist(), ground.tolist(), positions.tolist(), static, strict=True)
         )
     ]
     # Pairs i < j, from plain Python values: a frame of 20 people has 190 pairs.

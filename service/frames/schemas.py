@@ -59,7 +59,7 @@ class PersonObservation(StrictModel):
         description="The client's id for this person across this camera's frames, e.g. from its tracker; sightings "
         "with one track_id are one individual for calibration, whatever the time between them. Never give one id to "
         "two people: a tracker whose numbering restarts should prefix its ids with its start time. Unique within a "
-        "frame. `/distances` ignores it.",
+        "frame. It comes back with the person in results, `/distances` answers and violation alerts.",
         examples=["17", "2026-01-01T12:00:00Z:17"],
     )
 
@@ -152,6 +152,11 @@ class PersonPosition(BaseModel):
         default=False,
         description="Found at one of the camera's static spots (nothing there has moved for `static_after_s`: a "
         "mannequin, a poster): measured, but in no violation and no calibration evidence.",
+    )
+    track_id: str | None = Field(
+        default=None,
+        description="The person's `track_id` as posted (the client's tracker id), so that results, pairs and "
+        "alerts can be joined to the client's own people; null when none was posted (always for image frames).",
     )
 
 

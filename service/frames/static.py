@@ -64,11 +64,14 @@ class _Static:
     shoulder_y_px: float | None
     ankle_x_px: float | None
     ankle_y_px: float | None
+    client_track_id: str | None
     unusable_reason: str | None = STATIC_REASON
 
     @classmethod
     def of(cls, person: Any) -> _Static:
-        return cls(person.shoulder_x_px, person.shoulder_y_px, person.ankle_x_px, person.ankle_y_px)
+        return cls(
+            person.shoulder_x_px, person.shoulder_y_px, person.ankle_x_px, person.ankle_y_px, person.client_track_id
+        )
 
 
 def spots_seen(session: Session, camera_id: str, static_after_s: float) -> SpotsSeen:

@@ -13,6 +13,7 @@ import logging
 import uuid
 from collections.abc import Sequence
 from datetime import datetime, timedelta
+from typing import Any
 
 from sqlalchemy.orm import Session
 
@@ -61,11 +62,16 @@ def announce(dispatcher: Dispatcher, deliveries: Sequence[uuid.UUID]) -> None:
         log.warning("could not queue %d webhook deliveries (the sweep will): %s", len(deliveries), exc)
 
 
-def _candidates(outcome: FrameOutcome) -> list[Candidate]:
-    """The frame's violating pairs with both people's ground positions (read back from its stored result)."""
+def _people(outcome: FrameOutcome) -> list[dict[str, Any]]:
+    """The frame's people as its stored result gives them."""
     result = outcome.result
     parsed = json.loads(result) if isinstance(result, str) else result
-    ground = {p["index"]: p["ground_m"] for p in (parsed or {}).get("people", []) if p.get("ground_m")}
+    return list((parsed or {}).get("people", []))
+
+
+def _candidates(outcome: FrameOutcome, people: list[dict[str, Any]]) -> list[Candidate]:
+    """The frame's violating pairs with both people's ground positions (read back from its stored result)."""
+    ground = {p["index"]: p["ground_m"] for p in people if p.get("ground_m")}
     return [
         Candidate(v.person_i, v.person_j, tuple(ground[v.person_i]), tuple(ground[v.person_j]))  # type: ignore[arg-type]
         for v in outcome.violations
@@ -97,7 +103,9 @@ def violation_deliveries(
     deliveries: list[uuid.UUID] = []
     for outcome in frames:
         stds = {(v.person_i, v.person_j): v for v in outcome.violations}
-        fired = cooldown.admit(outcome.timestamp, _candidates(outcome))
+        people = _people(outcome)
+        track_ids = {p["index"]: p.get("track_id") for p in people}
+        fired = cooldown.admit(outcome.timestamp, _candidates(outcome, people))
         if not fired:
             continue
         pairs = []
@@ -113,6 +121,8 @@ def violation_deliveries(
                     distance_std_ft=feet(v.distance_std_m),
                     ground_i_m=c.a,
                     ground_j_m=c.b,
+                    track_id_i=track_ids.get(c.i),
+                    track_id_j=track_ids.get(c.j),
                 )
             )
         event = ViolationDetected(

@@ -45,6 +45,8 @@ class PairAlert(BaseModel):
     distance_std_ft: float | None
     ground_i_m: tuple[float, float] = Field(description="Person i on the ground [right, forward], metres.")
     ground_j_m: tuple[float, float] = Field(description="Person j on the ground [right, forward], metres.")
+    track_id_i: str | None = Field(default=None, description="Person i's `track_id` as posted; null when none was.")
+    track_id_j: str | None = Field(default=None, description="Person j's `track_id` as posted; null when none was.")
 
 
 class ViolationData(BaseModel):

@@ -56,7 +56,9 @@ def test_true_calibration_gives_true_distances(client: TestClient, app: FastAPI)
     with app.state.session_factory() as session:
         add_calibration(session, camera, values, make_current=True)
         session.commit()
-    response = client.post(f"/v1/cameras/{camera}/distances", json={"people": _people(scene, hide_ankles={0, 5})})
+    people = _people(scene, hide_ankles={0, 5})
+    people[1]["track_id"] = "walker-1"
+    response = client.post(f"/v1/cameras/{camera}/distances", json={"people": people})
     assert response.status_code == 200, response.text
     result = response.json()
     n = len(scene.tops_px)
@@ -65,6 +67,7 @@ def test_true_calibration_gives_true_distances(client: TestClient, app: FastAPI)
     for pair in result["pairs"]:
         assert pair["distance_m"] == pytest.approx(truth[pair["i"], pair["j"]], rel=1e-6, abs=1e-6)
     assert [p["placed_from"] for p in result["people"][:2]] == ["shoulders", "ankles"]
+    assert [p["track_id"] for p in result["people"][:3]] == [None, "walker-1", None]  # echoed as posted
     expected = {(i, j) for i in range(n) for j in range(i + 1, n) if truth[i, j] < 1.8288}
     assert {(v["i"], v["j"]) for v in result["violations"]} == expected
     # Ground coordinates are a rigid map of the ground: they reproduce the distances.
@@ -102,7 +105,14 @@ def test_unplaceable_people_and_empty_frames(client: TestClient, app: FastAPI, c
     unseen = {"keypoints": [[0.0, 0.0, 0.0]] * 17}  # a detection whose joints all failed
     people = [unseen, {"shoulder": [900, 400], "ankle": [900, 700]}, {"shoulder": [960, 400], "ankle": [960, 700]}]
     result = client.post(f"/v1/cameras/{camera}/distances", json={"people": people}).json()
-    assert result["people"][0] == {"index": 0, "placed_from": None, "ground_m": None, "point_m": None, "static": False}
+    assert result["people"][0] == {
+        "index": 0,
+        "placed_from": None,
+        "ground_m": None,
+        "point_m": None,
+        "static": False,
+        "track_id": None,
+    }
     assert result["pairs"][0] == {"i": 0, "j": 1, "distance_m": None, "distance_std_m": None}
     assert [(v["i"], v["j"]) for v in result["violations"]] == [(1, 2)]
     empty = client.post(f"/v1/cameras/{camera}/distances", json={"people": []}).json()

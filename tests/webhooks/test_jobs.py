@@ -111,12 +111,17 @@ def post_people(
     *,
     noise_px: float = 0.0,
     client_frame_id: str | None = None,
+    track_ids: list[str | None] | None = None,
 ) -> uuid.UUID:
     """Post one frame with these people of the simulated scene (indices), as the API stores it."""
     rng = np.random.default_rng(len(people) + int(at.timestamp()))
     tops = camera.scene.tops_px[people] + rng.normal(0, noise_px, (len(people), 2))
     bottoms = camera.scene.bottoms_px[people] + rng.normal(0, noise_px, (len(people), 2))
-    persons = [person_from_centres(tuple(t), tuple(b), IMAGE_SIZE) for t, b in zip(tops, bottoms, strict=True)]
+    ids = track_ids or [None] * len(people)
+    persons = [
+        person_from_centres(tuple(t), tuple(b), IMAGE_SIZE, track_id=track)
+        for t, b, track in zip(tops, bottoms, ids, strict=True)
+    ]
     with sessions() as session, session.begin():
         frame, _ = add_keypoint_frame(
             session, camera.camera_id, timestamp=at, people=persons, client_frame_id=client_frame_id
@@ -222,7 +227,9 @@ def test_calibration_and_violation_webhooks_end_to_end(
     elsewhere = subscribe(api, receiver, camera_ids=["cam-2"])
     pair = close_pairs(camera)[0]
     loner = far_person(camera, pair)
-    frame_id = post_people(sessions, redis_dispatcher, camera, [*pair, loner], T0, client_frame_id="f-1")
+    frame_id = post_people(
+        sessions, redis_dispatcher, camera, [*pair, loner], T0, client_frame_id="f-1", track_ids=["w-1", "w-2", None]
+    )
     run_jobs(connection)
     [alert] = payloads(receiver, violations, "violation.detected")
     data = alert["data"]
@@ -246,6 +253,9 @@ def test_calibration_and_violation_webhooks_end_to_end(
     assert alerted["distance_std_ft"] == pytest.approx(alerted["distance_std_m"] / METRES_PER_FOOT)
     assert alerted["ground_i_m"] == pytest.approx(result["people"][0]["ground_m"])
     assert alerted["ground_j_m"] == pytest.approx(result["people"][1]["ground_m"])
+    # The client's own ids for the two, as posted, in the alert and in the frame's result.
+    assert (alerted["track_id_i"], alerted["track_id_j"]) == ("w-1", "w-2")
+    assert [person["track_id"] for person in result["people"]] == ["w-1", "w-2", None]
     assert data["distance_threshold_ft"] == pytest.approx(6.0) and data["violation_count"] == 1
     assert data["cooldown_s"] == COOLDOWN_S
     # Calibration subscribers hear no violations, other cameras' subscribers nothing at all.
