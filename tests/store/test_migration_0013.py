@@ -5,24 +5,15 @@ from __future__ import annotations
 
 import pytest
 from alembic import command
-from sqlalchemy import inspect, text
+from sqlalchemy import text
 
 from service.store import make_engine
 from service.store.migrate import alembic_config, upgrade
-from tests.support.store import insert_raw_camera_and_frame
+from tests.support.store import insert_raw_camera_and_frame, observation_columns
 
 pytestmark = pytest.mark.both_backends
 
 FRAME_ID = "00000000-0000-0000-0000-000000000001"
-
-
-def _observation_columns(url: str) -> set[str]:
-    engine = make_engine(url)
-    try:
-        with engine.connect() as connection:
-            return {column["name"] for column in inspect(connection).get_columns("observations")}
-    finally:
-        engine.dispose()
 
 
 def test_0013_adds_the_client_track_id_column_and_downgrades_without_losing_people(database_url: str) -> None:
@@ -31,9 +22,9 @@ def test_0013_adds_the_client_track_id_column_and_downgrades_without_losing_peop
     try:
         with engine.begin() as connection:
             insert_raw_camera_and_frame(connection, people=1, client_frame_id="f-1")
-        assert "client_track_id" not in _observation_columns(database_url)
+        assert "client_track_id" not in observation_columns(database_url)
         upgrade(database_url, "0013")
-        assert "client_track_id" in _observation_columns(database_url)
+        assert "client_track_id" in observation_columns(database_url)
         with engine.begin() as connection:
             frame_id = FRAME_ID.replace("-", "") if connection.dialect.name == "sqlite" else FRAME_ID
             connection.execute(
@@ -48,7 +39,7 @@ def test_0013_adds_the_client_track_id_column_and_downgrades_without_losing_peop
             stored = connection.execute(text("SELECT client_track_id FROM observations")).scalars().all()
             assert stored == ["x" * 64]
         command.downgrade(alembic_config(database_url), "0012")
-        assert "client_track_id" not in _observation_columns(database_url)
+        assert "client_track_id" not in observation_columns(database_url)
         with engine.connect() as connection:
             assert connection.execute(text("SELECT client_frame_id FROM frames")).scalars().all() == ["f-1"]
             assert connection.execute(text("SELECT person_index FROM observations")).scalars().all() == [0]

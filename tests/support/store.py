@@ -7,7 +7,7 @@ from collections.abc import Sequence
 from datetime import UTC, datetime
 from typing import Any
 
-from sqlalchemy import Connection, func, select, text
+from sqlalchemy import Connection, func, inspect, select, text
 from sqlalchemy.orm import Session
 
 from service.calibration.evidence import key_new_evidence
@@ -17,6 +17,7 @@ from service.frames.ingest import add_keypoint_frame
 from service.frames.repository import record_frame_outcomes
 from service.geometry import DEFAULT_HEIGHT_M
 from service.geometry.evidence import SAMPLE_GRID
+from service.store import make_engine
 from service.store.models import Camera, Frame, Observation
 
 T0 = datetime(2024, 5, 1, 10, 0, 0, tzinfo=UTC)
@@ -134,3 +135,13 @@ def insert_raw_camera_and_frame(connection: Connection, *, people: int, client_f
             "people": people,
         },
     )
+
+
+def observation_columns(url: str) -> set[str]:
+    """The columns of the observations table at the database's current revision (the migration tests)."""
+    engine = make_engine(url)
+    try:
+        with engine.connect() as connection:
+            return {column["name"] for column in inspect(connection).get_columns("observations")}
+    finally:
+        engine.dispose()
