@@ -280,10 +280,11 @@ class MoveNet:
         graph_bytes = model_bytes
         trimmed = _trim_preamble(model_bytes)
         if trimmed is not None:
-            # The check compares graphs, so both run in float32 (sessions.py: `exact`).
-            self.full = make_session(trimmed[0], 1, runtime=runtime, exact=True)
+            # The check compares graphs, so both run in float32 on onnxruntime, whatever runs them later: compiling
+            # both for OpenVINO as well cost ~0.3 s each at every start.
+            self.full = make_session(trimmed[0], 1)
             self.normalise = trimmed[1]
-            if self._trim_agrees(make_session(model_bytes, 1, runtime=runtime, exact=True)):
+            if self._trim_agrees(make_session(model_bytes, 1)):
                 graph_bytes = trimmed[0]
             else:
                 log.warning("%s: trimmed graph disagrees with the original; using the original", pose_model)

@@ -20,8 +20,8 @@ Two runtimes run the same ONNX files:
   were lost (14 -> 12 of 22).
 
 `PoseRuntime` `auto` picks OpenVINO where the CPU has native bfloat16 and onnxruntime elsewhere, so a host without
-it runs exactly the float32 pipeline. `exact=True` asks for float32 whatever the runtime: load-time checks that an
-edited graph computes what the file does compare graphs, not precisions.
+it runs exactly the float32 pipeline. Load-time checks that an edited graph computes what the file does compare
+graphs, not precisions: they run on onnxruntime (movenet.py).
 """
 
 from __future__ import annotations
@@ -135,16 +135,14 @@ def make_session(
     spinning: bool = False,
     runtime: Runtime = "onnxruntime",
     streams: int = 1,
-    exact: bool = False,
 ) -> Session:
     """A CPU session on a file or on serialised model bytes (a graph edited in memory).
 
     `streams`: how many threads will call `run` at once, each wanting `threads` cores (onnxruntime runs each call
-    on the caller's thread and its own intra-op pool, so only OpenVINO needs to know). `exact`: float32 whatever
-    the runtime's fastest precision.
+    on the caller's thread and its own intra-op pool, so only OpenVINO needs to know).
     """
     if runtime == "openvino":
-        return OpenVINOSession(model, threads or default_threads(), streams=streams, exact=exact)
+        return OpenVINOSession(model, threads or default_threads(), streams=streams)
     source = str(model) if isinstance(model, Path) else model
     return ort.InferenceSession(source, session_options(threads, spinning=spinning), providers=PROVIDERS)
 
@@ -163,13 +161,13 @@ class OpenVINOSession:
     it; one with a symbolic shape keeps it symbolic (one compilation, not one per shape).
     """
 
-    def __init__(self, model: Path | bytes, threads: int, *, streams: int = 1, exact: bool = False) -> None:
+    def __init__(self, model: Path | bytes, threads: int, *, streams: int = 1) -> None:
         core = _core()
         graph = core.read_model(str(model)) if isinstance(model, Path) else core.read_model(model, b"")
         config: dict[str, Any] = {
             "NUM_STREAMS": max(1, streams),
             "INFERENCE_NUM_THREADS": max(1, threads) * max(1, streams),
-            "INFERENCE_PRECISION_HINT": "f32" if exact or not native_bf16() else "bf16",
+            "INFERENCE_PRECISION_HINT": "bf16" if native_bf16() else "f32",
             # Pinned threads cannot move off a core the API or another worker is using: on a shared host, no.
             "ENABLE_CPU_PINNING": False,
         }
