@@ -78,6 +78,8 @@ class AnalyzeOptions:
     equal_focal: bool = True
     stride: int = 1
     max_frames: int | None = None
+    fps: float | None = None
+    """Images per second of an image folder (its frame times; a video's come from the file)."""
     pose_model: str | None = None
     """`thunder`, `lightning` or `auto` (by person size); None: the service's POSEMETRY_POSE_MODEL."""
     threshold: Threshold | str = DEFAULT_THRESHOLD

@@ -113,7 +113,7 @@ class PictureWriter:
         self.videos: list[_Video] = []
         if enabled and analysis.wants_video and self.view is not None:
             source = analysis.source
-            fps = source.fps / source.stride if source.fps else IMAGE_FOLDER_VIDEO_FPS
+            fps = source.fps / source.stride if source.kind == "video" and source.fps else IMAGE_FOLDER_VIDEO_FPS
             self.videos = [
                 _Video(out_dir / OVERLAY_VIDEO, fps, source.image_size_px, observer),
                 _Video(out_dir / TOPDOWN_VIDEO, fps, (self.view.width_px, self.view.height_px), observer),

@@ -223,7 +223,7 @@ def run_analysis(path: Path, out_dir: Path, options: AnalyzeOptions, observer: O
     still written, so the pose work of a long video is not lost; the pictures need a camera and are not drawn.
     """
     options = options.checked()
-    source = open_source(path, stride=options.stride, max_frames=options.max_frames)
+    source = open_source(path, stride=options.stride, max_frames=options.max_frames, fps=options.fps)
     prepare_output(out_dir)
     estimator = load_estimator(options)
 

@@ -31,7 +31,8 @@ CHECKED_SUFFIXES = frozenset({".jpg", ".jpeg", ".png"})
 # ... or by OpenCV alone.
 OTHER_IMAGE_SUFFIXES = frozenset({".bmp", ".tif", ".tiff", ".webp"})
 IMAGE_SUFFIXES = CHECKED_SUFFIXES | OTHER_IMAGE_SUFFIXES
-# An image folder has no frame rate; an overlay video of one is written at this many frames per second.
+# An image folder's overlay video is written at this many frames per second (its own rate, `--fps`, may be one
+# image every few seconds: a slide show, not a video).
 IMAGE_FOLDER_VIDEO_FPS = 5.0
 # Most pixels a folder image may decode to (a 1e8-pixel frame would take ~300 MB as BGR and pose nothing better).
 MAX_IMAGE_PIXELS = 100_000_000
@@ -145,10 +146,12 @@ class ImageSource:
     image_size_px: tuple[int, int]
     """The size of the first readable image; others of another size are skipped."""
     fps: float | None = None
+    """Images per second the camera took (the user's `--fps`): the images' times, for linking one person's
+    sightings into one individual and for static spots; None: unknown, so neither."""
     kind: SourceKind = "images"
 
     @classmethod
-    def open(cls, path: Path, stride: int = 1, max_frames: int | None = None) -> ImageSource:
+    def open(cls, path: Path, stride: int = 1, max_frames: int | None = None, fps: float | None = None) -> ImageSource:
         if path.is_dir():
             found = sorted(
                 (p for p in path.iterdir() if p.is_file() and not p.name.startswith(".") and _is_image(p)),
@@ -164,7 +167,7 @@ class ImageSource:
                 image = _read_image(file)
             except ImageError:
                 continue
-            return cls(path, files, stride, max_frames, (int(image.shape[1]), int(image.shape[0])))
+            return cls(path, files, stride, max_frames, (int(image.shape[1]), int(image.shape[0])), fps)
         raise AnalyzeError(f"none of the {len(files)} images in {path} could be read")
 
     def planned(self) -> int | None:
@@ -183,7 +186,7 @@ class ImageSource:
                 reason = f"image size {image.shape[1]}x{image.shape[0]} differs from the first image's {width}x{height}"
                 yield SkippedFrame(index, file.name, reason)
                 continue
-            yield SourceFrame(index, None, file.name, image)
+            yield SourceFrame(index, index / self.fps if self.fps else None, file.name, image)
 
 
 FrameSource = VideoSource | ImageSource
@@ -207,8 +210,12 @@ def _read_image(path: Path) -> np.ndarray:
     return image
 
 
-def open_source(path: Path, *, stride: int = 1, max_frames: int | None = None) -> FrameSource:
-    """The frames at `path`: a folder of images, one image, or a video; AnalyzeError when there are none."""
+def open_source(path: Path, *, stride: int = 1, max_frames: int | None = None, fps: float | None = None) -> FrameSource:
+    """The frames at `path`: a folder of images, one image, or a video; AnalyzeError when there are none.
+
+    `fps`: the rate an image folder was taken at (a video's own is read from the file)."""
+    if fps is not None and not (math.isfinite(fps) and fps > 0):
+        raise AnalyzeError(f"the frame rate must be a positive number of images per second, got {fps:g}")
     if stride < 1:
         raise AnalyzeError(f"the stride must be at least 1, got {stride}")
     if max_frames is not None and max_frames < 1:
@@ -216,7 +223,9 @@ def open_source(path: Path, *, stride: int = 1, max_frames: int | None = None) -
     if not path.exists():
         raise AnalyzeError(f"{path} does not exist")
     if path.is_dir() or _is_image(path):
-        return ImageSource.open(path, stride, max_frames)
+        return ImageSource.open(path, stride, max_frames, fps)
     if not path.is_file():
         raise AnalyzeError(f"{path} is neither a video file nor a folder of images")
+    if fps is not None:
+        raise AnalyzeError("--fps is for a folder of images: a video's frame times come from the video")
     return VideoSource.open(path, stride, max_frames)

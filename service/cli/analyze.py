@@ -14,6 +14,11 @@ def analyze(
     equal_focal: bool = typer.Option(True, "--equal-focal/--free-focal", help="Square pixels (fx = fy), or not."),
     stride: int = typer.Option(1, help="Analyse every n-th frame."),
     max_frames: int | None = typer.Option(None, help="Analyse at most this many frames (after the stride)."),
+    fps: float | None = typer.Option(
+        None,
+        help="Images per second a folder of images was taken at (0.5: one every 2 s): their times, so one person's "
+        "sightings count as one individual and still spots can be found (default: unknown, neither).",
+    ),
     pose_model: str | None = typer.Option(
         None, help="thunder, lightning or auto (by person size; default: POSEMETRY_POSE_MODEL)."
     ),
@@ -75,6 +80,7 @@ def analyze(
         equal_focal=equal_focal,
         stride=stride,
         max_frames=max_frames,
+        fps=fps,
         pose_model=pose_model,
         threshold=threshold,
         focal_px=None if focal is None else (focal[0] if len(focal) == 1 else (focal[0], focal[1])),

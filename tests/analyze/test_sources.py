@@ -44,6 +44,9 @@ def test_image_folder_natural_order_stride_and_skipped_files(tmp_path: Path) -> 
     assert [(i.index, i.file) for i in strided.frames()] == [(0, "f_1.jpg"), (2, "f_3.png")]
     single = open_source(tmp_path / "f_2.png")
     assert [i.file for i in single.frames()] == ["f_2.png"]
+    # A folder's own rate (`--fps`) gives its images their times, counted in the whole folder's steps.
+    timed = open_source(tmp_path, stride=2, fps=0.5)
+    assert timed.fps == 0.5 and [i.time_s for i in timed.frames() if isinstance(i, SourceFrame)] == [0.0, 8.0]
 
 
 @pytest.mark.parametrize(
@@ -59,3 +62,12 @@ def test_image_folder_natural_order_stride_and_skipped_files(tmp_path: Path) -> 
 def test_bad_sources_are_one_clear_error(tmp_path: Path, make, message: str) -> None:  # type: ignore[no-untyped-def]
     with pytest.raises(AnalyzeError, match=message):
         open_source(make(tmp_path))
+
+
+def test_a_frame_rate_is_for_image_folders_and_positive(tmp_path: Path, town: Path) -> None:
+    write_image(tmp_path / "a.png")
+    for fps in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(AnalyzeError, match="positive number of images per second"):
+            open_source(tmp_path, fps=fps)
+    with pytest.raises(AnalyzeError, match="--fps is for a folder of images"):
+        open_source(TOWN_VIDEO, fps=25.0)

@@ -144,7 +144,9 @@ def test_video_pictures_and_videos(video_run: tuple[Result, Path]) -> None:
 def test_image_folder_with_a_known_focal_length(
     models: Path, town: Path, tmp_path: Path, truth: TownCentreCalibration
 ) -> None:
-    """A folder with two bad files among the frames: they are skipped with the reason, the rest analysed."""
+    """A folder with two bad files among the frames: they are skipped with the reason, the rest analysed; `--fps`
+    gives the images their times (the frames are 18 of the video's apart, 0.72 s; the last one 17), so one walker
+    counts once."""
     folder = tmp_path / "frames"
     folder.mkdir()
     for name in FOLDER_FRAMES:
@@ -168,6 +170,8 @@ def test_image_folder_with_a_known_focal_length(
         "--threshold",
         "2 m",
         "--video",
+        "--fps",
+        25 / 18,
     )
     assert result.exit_code == 0, result.output
     assert "truncated" in result.output and "clip_000127.png" in result.output
@@ -179,7 +183,9 @@ def test_image_folder_with_a_known_focal_length(
     assert cal["evidence"]["frames"] == len(FOLDER_FRAMES) and cal["evidence"]["frames_skipped"] == 2
     assert cal["source"]["kind"] == "images" and cal["options"]["threshold_m"] == 2.0
     frames = _lines(out / "frames.jsonl")
-    assert [f["file"] for f in frames] == FOLDER_FRAMES and all(f["time_s"] is None for f in frames)
+    assert [f["file"] for f in frames] == FOLDER_FRAMES
+    assert [f["time_s"] for f in frames] == pytest.approx([0.72 * k for k in range(len(FOLDER_FRAMES))])
+    assert cal["source"]["fps"] == pytest.approx(25 / 18) and cal["individuals"] < cal["evidence"]["inliers"]
     for pair in (p for f in frames for p in f["pairs"]):
         assert pair["violation"] == (pair["distance_m"] is not None and pair["distance_m"] < 2.0)
     overlays = sorted((out / "overlays").iterdir())
