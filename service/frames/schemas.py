@@ -57,8 +57,9 @@ class PersonObservation(StrictModel):
         default=None,
         pattern=CLIENT_TRACK_ID_PATTERN,
         description="The client's id for this person across this camera's frames, e.g. from its tracker; sightings "
-        "with one track_id are one individual for calibration, whatever the time between them. Never give one id to "
-        "two people: a tracker whose numbering restarts should prefix its ids with its start time. Unique within a "
+        "with one track_id less than a minute apart are one individual for calibration (after a longer gap without "
+        "it, another one). Never give one id to two people at once; a tracker whose numbering restarts should "
+        "prefix its ids with its start time (a reuse within a minute would merge two people). Unique within a "
         "frame. It comes back with the person in results, `/distances` answers and violation alerts.",
         examples=["17", "2026-01-01T12:00:00Z:17"],
     )

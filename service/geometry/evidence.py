@@ -161,7 +161,7 @@ def solve_evidence(
     (service.geometry.tracks), so one person seen in many frames has one height; `appearance` (each observation's
     descriptor or None) also links them across gaps of seconds (a camera posting an image every few seconds), and
     `client_tracks` (each observation's client track id or None: a keypoint client's tracker) makes each id one
-    individual, whatever the gaps. Repeats are collapsed (see the module docstring), then, with `cap`, a
+    individual (across gaps of up to a minute). Repeats are collapsed (see the module docstring), then, with `cap`, a
     spatially balanced sample of at most `cap` is drawn from what remains (`balanced_sample`, seeded by
     options.seed), and `calibrate` runs on it. A solve that cannot produce a camera returns its reason instead of
     raising, because callers record failures with the evidence they were given (the calibration worker keeps them

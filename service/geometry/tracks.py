@@ -53,9 +53,12 @@ people in dark coats walking together; docs/benchmarks/camera-model.md). People 
 keypoints) are linked by motion alone, exactly as without the stage.
 
 Most camera systems run a tracker and know which detection is which person: a client posting keypoints may give
-each person its tracker's id (`client_tracks`). Those ids are the client's authority, whatever the time between
-sightings: observations sharing an id are one individual (their tracks are united at the end), and neither motion
-nor appearance links an observation with an id to a track or chain holding another id. Observations without an id
+each person its tracker's id (`client_tracks`). Those ids are the client's authority: observations sharing an id
+are one individual (their tracks are united at the end), and neither motion nor appearance links an observation
+with an id to a track or chain holding another id. Only an id's sightings more than CLIENT_MAX_GAP_S apart, with
+none between, are taken for two individuals: a tracker that restarts numbers its people from 1 again, and a reused
+id would merge two people's heights (a bias), whereas splitting one person who was out of view for a minute only
+counts them twice (a little independence). Observations without an id
 link as before, to each other and to tracks with an id; without any id the labels are exactly those of linking
 without ids. Ids are one camera's and one calibration epoch's, as a sample is.
 """
@@ -102,6 +105,9 @@ LONG_SPEED_M_S = 2.0
 # 2 of 4979 stranger pairs (two people in dark coats walking together) and 308 of 572 one-person pairs.
 MAX_APPEARANCE_DISTANCE = 0.27
 APPEARANCE_SIGHTINGS = 5
+# Client track ids: sightings of one id further apart than this, with none between, are two individuals (a tracker
+# restarting reuses its ids). Longer than the long-gap stage's reach: an id links what appearance could not.
+CLIENT_MAX_GAP_S = 60.0
 # Frame times are floats (25 frames of 0.04 s are 1.0000000000000002 s): time limits hold to a microsecond.
 _TIME_TOLERANCE_S = 1e-6
 
@@ -138,7 +144,7 @@ def link_tracks(
     length = np.hypot(*segment.T)
     valid = np.isfinite(times) & np.all(np.isfinite(tops), 1) & np.all(np.isfinite(bottoms), 1) & (length > 0)
     gates = _Gates(times, bottoms, segment, length, height_m, max_speed_m_s, max_size_ratio)
-    client = _client_codes(client_tracks, n)
+    client = _client_codes(client_tracks, times)
     labels = np.full(n, -1)
     members: list[list[int]] = []  # per track: its observations in time order
     last_time = np.full(n, -np.inf)  # per track (at most n): its latest observation's time
@@ -187,16 +193,31 @@ def link_tracks(
     return labels
 
 
-def _client_codes(client_tracks: Sequence[str | None] | None, n: int) -> np.ndarray | None:
-    """(n,) a code per distinct client id (0, 1, ...), -1 where none; None when no observation has an id, so that
-    linking without ids takes exactly the path it took before ids existed."""
+def _client_codes(client_tracks: Sequence[str | None] | None, times: np.ndarray) -> np.ndarray | None:
+    """(n,) a code per individual the client ids name (0, 1, ...), -1 where none; None when no observation has an
+    id, so that linking without ids takes exactly the path it took before ids existed. One id's sightings split
+    into several codes where CLIENT_MAX_GAP_S passes without one (module docstring)."""
     if client_tracks is None:
         return None
+    n = len(times)
     if len(client_tracks) != n:
         raise ValueError(f"client_tracks must hold one id (or None) per observation ({n})")
-    codes: dict[str, int] = {}
-    client = np.array([-1 if key is None else codes.setdefault(key, len(codes)) for key in client_tracks])
-    return client if codes else None
+    by_id: dict[str, list[int]] = {}
+    for index, key in enumerate(client_tracks):
+        if key is not None:
+            by_id.setdefault(key, []).append(index)
+    if not by_id:
+        return None
+    client = np.full(n, -1)
+    code = 0
+    for rows in by_id.values():
+        ordered = np.array(rows)[np.argsort(times[rows], kind="stable")]
+        # A non-finite time cannot be placed in the id's sequence: it stays with the segment before it.
+        step = np.diff(times[ordered])
+        starts = np.concatenate(([True], np.nan_to_num(step, nan=0.0) > CLIENT_MAX_GAP_S + _TIME_TOLERANCE_S))
+        client[ordered] = code + np.cumsum(starts) - 1
+        code += int(starts.sum())
+    return client
 
 
 def _other_clients(tracks: np.ndarray, observations: np.ndarray) -> np.ndarray:

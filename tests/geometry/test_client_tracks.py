@@ -1,4 +1,5 @@
-"""Client track ids in linking: one id is one individual across any gap, two ids never one, no id changes nothing."""
+"""Client track ids in linking: one id is one individual across gaps of up to a minute, two ids never one, no id
+changes nothing."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from hypothesis import strategies as st
 from service.geometry import CalibrationProblem
 from service.geometry.appearance import APPEARANCE_REGIONS, REGION_BINS, encode_descriptor
 from service.geometry.evidence import solve_evidence
-from service.geometry.tracks import MAX_GAP_S, link_tracks
+from service.geometry.tracks import CLIENT_MAX_GAP_S, MAX_GAP_S, link_tracks
 
 
 def _walker(times_s: np.ndarray, start_px: tuple[float, float], step_px_s: tuple[float, float], length_px: float):
@@ -35,6 +36,20 @@ def test_one_id_is_one_individual_across_a_ten_second_gap() -> None:
     labels = link_tracks(times, tops, bottoms, client_tracks=["a", "b", "a", "b"])
     assert labels[0] == labels[2] and labels[1] == labels[3] and labels[0] != labels[1]
     assert sorted(set(labels.tolist())) == [0, 1]
+
+
+def test_an_id_seen_again_after_more_than_a_minute_is_another_individual() -> None:
+    """A tracker that restarts numbers its people from 1 again: "7" at 0-4 s and "7" 90 s later are two people
+    (merging them would force two heights into one); within a minute of each other they are one."""
+    times = np.array([0.0, 2.0, 4.0, 94.0, 96.0, 96.0 + CLIENT_MAX_GAP_S])
+    tops, bottoms = _walker(times, (500, 700), (1, 0), 140)
+    labels = link_tracks(times, tops, bottoms, client_tracks=["7"] * len(times))
+    assert len(set(labels[:3])) == 1 and len(set(labels[3:])) == 1 and labels[0] != labels[3]
+    # In any order, and with a sighting placed later than a minute's steps: only the gap between sightings counts.
+    order = np.array([5, 3, 0, 4, 2, 1])
+    shuffled = link_tracks(times[order], tops[order], bottoms[order], client_tracks=["7"] * 6)
+    back = shuffled[np.argsort(order)]  # each observation's label, in the original order
+    assert (back == back[0]).tolist() == [True] * 3 + [False] * 3 and len(set(back[3:])) == 1
 
 
 def test_two_ids_are_never_one_individual_whatever_motion_says() -> None:
