@@ -12,6 +12,7 @@ from service.geometry import CalibrationProblem
 from service.geometry.appearance import APPEARANCE_REGIONS, REGION_BINS, encode_descriptor
 from service.geometry.evidence import solve_evidence
 from service.geometry.tracks import CLIENT_MAX_GAP_S, MAX_GAP_S, link_tracks
+from tests.support.geometry import sightings
 
 
 def _walker(times_s: np.ndarray, start_px: tuple[float, float], step_px_s: tuple[float, float], length_px: float):
@@ -112,9 +113,7 @@ def test_without_ids_the_labels_are_those_of_linking_without_them(
 ) -> None:
     rng = np.random.default_rng(seed)
     n = people * frames
-    times = np.repeat(np.arange(frames) * spacing_s, people)
-    bottoms = rng.uniform((100, 300), (1800, 1000), size=(n, 2))
-    tops = bottoms - np.column_stack((rng.normal(0, 5, n), rng.uniform(60, 200, n)))
+    times, tops, bottoms = sightings(rng, people, frames, spacing_s)
     appearance = [look for k in range(people) for look in _look(seed + k, frames)] if described else None
     plain = link_tracks(times, tops, bottoms, appearance=appearance)
     assert np.array_equal(link_tracks(times, tops, bottoms, appearance=appearance, client_tracks=[None] * n), plain)
@@ -127,9 +126,7 @@ def test_each_id_is_exactly_one_label(seed: int, people: int, frames: int, spaci
     # some sightings: a label holds one id, and every id's sightings share one label.
     rng = np.random.default_rng(seed)
     n = people * frames
-    times = np.repeat(np.arange(frames) * spacing_s, people)
-    bottoms = rng.uniform((800, 600), (900, 700), size=(n, 2))
-    tops = bottoms - np.column_stack((np.zeros(n), rng.uniform(120, 140, n)))
+    times, tops, bottoms = sightings(rng, people, frames, spacing_s, crowd=True)
     appearance = [look for look in _look(seed, n)]
     ids = [None if rng.random() < 0.3 else f"p{rng.integers(people)}" for _ in range(n)]
     labels = link_tracks(times, tops, bottoms, appearance=appearance, client_tracks=ids)

@@ -14,6 +14,7 @@ from service.geometry.appearance import (
     encode_descriptor,
 )
 from service.geometry.tracks import LONG_MAX_GAP_S, MAX_APPEARANCE_DISTANCE, link_tracks
+from tests.support.geometry import sightings
 
 REGIONS = len(APPEARANCE_REGIONS)
 
@@ -111,9 +112,7 @@ def test_without_descriptors_the_labels_are_those_of_motion_alone(
 ) -> None:
     rng = np.random.default_rng(seed)
     n = people * frames
-    times = np.repeat(np.arange(frames) * spacing_s, people)
-    bottoms = rng.uniform((100, 300), (1800, 1000), size=(n, 2))
-    tops = bottoms - np.column_stack((rng.normal(0, 5, n), rng.uniform(60, 200, n)))
+    times, tops, bottoms = sightings(rng, people, frames, spacing_s)
     plain = link_tracks(times, tops, bottoms)
     assert np.array_equal(link_tracks(times, tops, bottoms, appearance=[None] * n), plain)
     # Descriptors of another layout (a shorter blob) count as none.
@@ -127,9 +126,7 @@ def test_one_individual_is_never_seen_twice_in_one_frame(seed: int, people: int,
     # holds two observations of one frame time, whatever the long-gap stage joins.
     rng = np.random.default_rng(seed)
     n = people * frames
-    times = np.repeat(np.arange(frames) * spacing_s, people)
-    bottoms = rng.uniform((800, 600), (900, 700), size=(n, 2))
-    tops = bottoms - np.column_stack((np.zeros(n), rng.uniform(120, 140, n)))
+    times, tops, bottoms = sightings(rng, people, frames, spacing_s, crowd=True)
     looks = [_look(seed + k) for k in range(3)]
     appearance = [_seen(looks[rng.integers(3)], seed + i, noise=0.05) for i in range(n)]
     labels = link_tracks(times, tops, bottoms, appearance=appearance)

@@ -36,3 +36,18 @@ def ideal(s: Scene) -> dict[str, object]:
         "keypoint_bias_std": 0.0,
         "ankle_height_m": 0.0,
     }
+
+
+def sightings(
+    rng: np.random.Generator, people: int, frames: int, spacing_s: float, *, crowd: bool = False
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(times, tops, bottoms) of `people` sightings in each of `frames` frames `spacing_s` apart, for the linking
+    tests: scattered over the image with all sizes and leans, or (`crowd`) standing about in a 100 px square, of
+    like size, upright, so that motion and appearance admit many links."""
+    n = people * frames
+    times = np.repeat(np.arange(frames) * spacing_s, people)
+    if crowd:
+        bottoms = rng.uniform((800, 600), (900, 700), size=(n, 2))
+        return times, bottoms - np.column_stack((np.zeros(n), rng.uniform(120, 140, n))), bottoms
+    bottoms = rng.uniform((100, 300), (1800, 1000), size=(n, 2))
+    return times, bottoms - np.column_stack((rng.normal(0, 5, n), rng.uniform(60, 200, n))), bottoms
