@@ -188,10 +188,27 @@ class OpenVINOSession:
         request = getattr(self._local, "request", None)
         if request is None:
             request = self._local.request = self._compiled.create_infer_request()
+        if _first_inference.is_set():
+            return self._infer(request, output_names, input_feed)
+        # OpenVINO's Python binding initialises its numpy bridge (a pybind11 call-once) on the first tensor it
+        # reads, and two threads doing that at once deadlock for good (the GIL against the once-flag; 3 fresh
+        # processes in 20 hung a pose worker's first frame). The process's first inference runs alone.
+        with _first_inference_lock:
+            results = self._infer(request, output_names, input_feed)
+            _first_inference.set()
+            return results
+
+    def _infer(
+        self, request: ov.InferRequest, output_names: Sequence[str] | None, input_feed: dict[str, np.ndarray]
+    ) -> list[np.ndarray]:
         results = request.infer(input_feed)
         names = output_names or [port.get_any_name() for port in self._compiled.outputs]
         # Copies: the request reuses its output buffers on the next call.
         return [np.array(results[self._outputs[name]]) for name in names]
+
+
+_first_inference = threading.Event()
+_first_inference_lock = threading.Lock()
 
 
 @cache
