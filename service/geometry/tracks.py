@@ -149,8 +149,10 @@ def link_tracks(
     members: list[list[int]] = []  # per track: its observations in time order
     last_time = np.full(n, -np.inf)  # per track (at most n): its latest observation's time
     track_client = np.full(n, -1)  # per track: the code of its client id, -1 while it has none
-    for t in np.unique(times[valid]):
-        current = np.flatnonzero(valid & (times == t))
+    by_time = np.flatnonzero(valid)
+    by_time = by_time[np.argsort(times[by_time], kind="stable")]
+    frame_times, starts = np.unique(times[by_time], return_index=True)
+    for t, current in zip(frame_times.tolist(), np.split(by_time, starts[1:]), strict=True):
         assigned = np.zeros(len(current), dtype=bool)
         since = t - last_time[: len(members)]
         live = np.flatnonzero((since > 0.0) & (since <= max_gap_s + _TIME_TOLERANCE_S))
@@ -158,9 +160,10 @@ def link_tracks(
             cost = gates.costs([members[k] for k in live], current)
             if client is not None:
                 cost[_other_clients(track_client[live], client[current])] = np.inf
-            rows, cols = linear_sum_assignment(np.where(np.isfinite(cost), cost, 1e9))
+            finite = np.isfinite(cost)
+            rows, cols = linear_sum_assignment(np.where(finite, cost, 1e9)) if finite.any() else ((), ())
             for r, c in zip(rows, cols, strict=True):
-                if np.isfinite(cost[r, c]):
+                if finite[r, c]:
                     labels[current[c]] = live[r]
                     members[live[r]].append(int(current[c]))
                     last_time[live[r]] = t
@@ -278,20 +281,27 @@ class _Gates:
         ok = (np.linalg.norm(move, axis=2) <= self.max_speed_m_s * gap[:, None] * metre_px + jitter) & (
             ratio <= self.max_size_ratio
         )
-        windows = [self._window(track, float(g)) for track, g in zip(tracks, gap, strict=True)]
-        span = self.times[last] - self.times[[window[0] for window in windows]]
-        sizes = np.array([len(window) for window in windows])
-        fitted = (sizes >= 2) & (gap <= MAX_EXTRAPOLATION * span + _TIME_TOLERANCE_S)
-        single = ~fitted & (gap <= SINGLE_MAX_GAP_S + _TIME_TOLERANCE_S)
         cost = np.full(move.shape[:2], np.inf)
+        # Only tracks that pass the plain speed and size gates for some observation are judged further: in a
+        # solve's sample most live tracks pass none, and their windows cost most of the linking's time.
+        candidates = np.flatnonzero(ok.any(axis=1))
+        if not len(candidates):
+            return cost
+        windows = [self._window(tracks[r], float(gap[r])) for r in candidates]
+        span = self.times[last[candidates]] - self.times[[window[0] for window in windows]]
+        sizes = np.array([len(window) for window in windows])
+        fitted = (sizes >= 2) & (gap[candidates] <= MAX_EXTRAPOLATION * span + _TIME_TOLERANCE_S)
+        single = ~fitted & (gap[candidates] <= SINGLE_MAX_GAP_S + _TIME_TOLERANCE_S)
         if fitted.any():
-            rows = np.flatnonzero(fitted)
-            residual, fit_jitter, allowed_m = self._from_velocity([windows[r] for r in rows], current)
+            rows = candidates[fitted]
+            residual, fit_jitter, allowed_m = self._from_velocity(
+                [window for window, f in zip(windows, fitted, strict=True) if f], current
+            )
             cost[rows] = self._ellipse(
                 last[rows], residual, allowed_m[:, None] * metre_px[rows], jitter[rows] * fit_jitter[:, None]
             )
         if single.any():
-            rows = np.flatnonzero(single)
+            rows = candidates[single]
             reach_px = SINGLE_SPEED_M_S * gap[rows, None] * metre_px[rows]
             cost[rows] = self._ellipse(last[rows], move[rows], reach_px, jitter[rows])
         return np.where(ok & (cost <= 1.0), cost, np.inf)
