@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -345,3 +346,25 @@ def test_schedule_runs_a_dominant_region_alone_and_the_rest_side_by_side() -> No
     assert schedule(bands, 2) == ([], [1, 2, 3, 0])  # largest first
     assert schedule(bands + [big], 2) == ([4], [1, 2, 3, 0])
     assert schedule(bands, 1) == ([1, 2, 3, 0], [])
+
+
+def test_kept_plans_follow_the_camera(auto: TopDownPose, town_dir: Path) -> None:
+    """Plans are kept per camera: each calibration, feet box and size gets its own, a changed calibration never the
+    previous one's, and a kept plan cannot be changed by its caller."""
+    published = as_calibration(load_calibration(town_dir / "TownCentre-calibration-ci.txt"))
+    steeper = replace(published, normal=np.array([0.0, -0.8, -0.6]))
+    higher = replace(published, rho=published.rho * 1.5)
+    box = (200.0, 300.0, 1700.0, 1080.0)
+    cases = [(IMAGE_SIZE, None, None), (IMAGE_SIZE, published, None), (IMAGE_SIZE, steeper, None)]
+    cases += [(IMAGE_SIZE, higher, None)]
+    cases += [(IMAGE_SIZE, published, box), ((1280, 720), published, None), ((1280, 720), None, None)]
+    fresh = []
+    for case in cases:
+        auto._plans.clear()  # what an estimator that kept nothing computes
+        fresh.append(auto.plan(*case))
+    assert len({tuple(plan) for plan in fresh}) == len(cases)
+    for _ in range(2):
+        for case, plan in zip(cases, fresh, strict=True):
+            kept = auto.plan(*case)
+            assert kept == plan
+            kept.clear()
