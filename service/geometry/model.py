@@ -205,29 +205,73 @@ def unpack(layout: Layout, theta: FloatArray, normal0: FloatArray, mu0: float) -
     )
 
 
+@dataclass(frozen=True)
+class _Pass:
+    """One forward pass through the model with the intermediates the chain rule reuses (`_chain`): the
+    Jacobians cost a few more array operations on these instead of another evaluation per parameter."""
+
+    rel: FloatArray  # (K, n, 2) latent ankle about the principal point
+    sq_rel: FloatArray  # (K, n, 1) its squared radius
+    spread: FloatArray  # (K, n, 1) 1 + k |rel|^2, the division model's denominator
+    undist: FloatArray  # (K, n, 2)
+    rx: FloatArray  # (K, n) the ankle's ray
+    ry: FloatArray
+    denom_raw: FloatArray  # (K, n) N . ray before the clamp
+    t: FloatArray  # (K, n) the ray's length to the plane
+    zt_raw: FloatArray  # (K, n) the shoulder's depth before the clamp
+    zt: FloatArray
+    top_u: FloatArray  # (K, n, 2) the shoulder's undistorted image about c
+    sq_top: FloatArray  # (K, n, 1)
+    disc_raw: FloatArray  # (K, n, 1) 1 - 4 k |top_u|^2 before the clamp
+    root: FloatArray  # (K, n, 1) sqrt of the clamped disc
+    gain: FloatArray  # (K, n, 1) 2 / (1 + root): distorted over undistorted radius
+    cos: FloatArray | None  # (K, n) the lean's rotation, None when upright
+    sin: FloatArray | None
+    along: FloatArray  # (K, n, 2) the (turned) segment from ankle to shoulder
+    length_raw: FloatArray  # (K, n, 1)
+    length: FloatArray
+    top: FloatArray  # (K, n, 2)
+
+
+def _forward(cam: CameraBatch, ankles_n: FloatArray, heights_m: FloatArray, lean: FloatArray | None) -> _Pass:
+    rel = ankles_n - cam.c
+    sq_rel = np.sum(rel * rel, -1, keepdims=True)
+    spread = 1.0 + cam.k[..., None] * sq_rel
+    undist = rel / spread
+    rx, ry = undist[..., 0] / cam.fx, undist[..., 1] / cam.fy
+    n = cam.normal
+    denom_raw = rx * n[..., 0] + ry * n[..., 1] + n[..., 2]
+    t = -cam.rho / np.minimum(denom_raw, -1e-9)  # a ray that misses the ground
+    xt = rx * t + heights_m * n[..., 0]
+    yt = ry * t + heights_m * n[..., 1]
+    zt_raw = t + heights_m * n[..., 2]
+    zt = np.maximum(zt_raw, 1e-9)
+    top_u = np.stack((cam.fx * xt / zt, cam.fy * yt / zt), -1)
+    sq_top = np.sum(top_u * top_u, -1, keepdims=True)
+    disc_raw = 1.0 - 4.0 * cam.k[..., None] * sq_top
+    root = np.sqrt(np.maximum(disc_raw, 0.0))
+    gain = 2.0 / (1.0 + root)
+    along = cam.c + top_u * gain - ankles_n
+    cos = sin = None
+    if lean is not None:
+        cos, sin = np.cos(lean), np.sin(lean)
+        along = np.stack((cos * along[..., 0] - sin * along[..., 1], sin * along[..., 0] + cos * along[..., 1]), -1)
+    length_raw = np.sqrt(np.sum(along * along, -1, keepdims=True))
+    length = np.maximum(length_raw, 1e-12)
+    top = ankles_n + along + cam.bias[..., None] * along / length
+    return _Pass(
+        rel, sq_rel, spread, undist, rx, ry, denom_raw, t, zt_raw, zt, top_u, sq_top, disc_raw, root, gain,
+        cos, sin, along, length_raw, length, top,
+    )  # fmt: skip
+
+
 def predict(
     cam: CameraBatch, ankles_n: FloatArray, heights_m: FloatArray, lean: FloatArray | None = None
 ) -> FloatArray:
     """(K, n, 2) predicted (distorted, biased) shoulder centres of people standing on latent ankles (n, 2) or
     (K, n, 2) with heights (n,) or (K, n), their image segments turned about the ankle by `lean` ((K?, n)
     radians, or upright; see the module docstring for why the lean is an angle in the image)."""
-    rel = ankles_n - cam.c
-    undist = rel / (1.0 + cam.k[..., None] * np.sum(rel * rel, -1, keepdims=True))
-    rx, ry = undist[..., 0] / cam.fx, undist[..., 1] / cam.fy
-    n = cam.normal
-    denom = np.minimum(rx * n[..., 0] + ry * n[..., 1] + n[..., 2], -1e-9)  # a ray that misses the ground
-    t = -cam.rho / denom
-    xt = rx * t + heights_m * n[..., 0]
-    yt = ry * t + heights_m * n[..., 1]
-    zt = np.maximum(t + heights_m * n[..., 2], 1e-9)
-    top_u = np.stack((cam.fx * xt / zt, cam.fy * yt / zt), -1)
-    disc = np.maximum(1.0 - 4.0 * cam.k[..., None] * np.sum(top_u * top_u, -1, keepdims=True), 0.0)
-    along = cam.c + top_u * (2.0 / (1.0 + np.sqrt(disc))) - ankles_n
-    if lean is not None:
-        cos, sin = np.cos(lean), np.sin(lean)
-        along = np.stack((cos * along[..., 0] - sin * along[..., 1], sin * along[..., 0] + cos * along[..., 1]), -1)
-    length = np.maximum(np.sqrt(np.sum(along * along, -1, keepdims=True)), 1e-12)
-    return ankles_n + along + cam.bias[..., None] * along / length
+    return _forward(cam, ankles_n, heights_m, lean).top
 
 
 @dataclass(frozen=True)
@@ -249,3 +293,129 @@ class Observations:
         top = predict(cam, ankles_n, cam.mu * (1.0 + person[..., 0]), lean)
         ankle_r = np.broadcast_to((ankles_n - self.bottoms_n) / self.ankle_std_n[:, None], top.shape)
         return np.concatenate((ankle_r, (top - self.tops_n) / self.top_std_n[:, None]), -1)
+
+
+def _chain(cam: CameraBatch, f: _Pass, ankles_n: FloatArray, heights_m: FloatArray) -> dict[str, FloatArray]:
+    """d top / d (each of the model's natural quantities), (n, 2, ...) per observation, for one camera (K = 1).
+
+    Reverse accumulation from the shoulder: top has two components, so carrying d top / d (intermediate) back
+    through the pass costs a few (n, 2, 2) products however many parameters there are. Where a clamp holds a
+    quantity its derivative is 0 (a ray that misses the ground, a shoulder behind the camera, a point beyond
+    the lens's horizon, a zero-length segment), as a step that stays inside the clamp would see it.
+    """
+    fx, fy, k, bias = (float(x[0, 0]) for x in (cam.fx, cam.fy, cam.k, cam.bias))
+    normal = cam.normal[0, 0]
+    eye = np.eye(2)
+    along, length = f.along[0], f.length[0]
+    unit = along / length
+    # top = a + d + bias d / |d|
+    held = (f.length_raw[0] <= 1e-12)[:, :, None]
+    g_d = eye + (bias / length)[:, :, None] * (eye - np.where(held, 0.0, unit[:, :, None] * unit[:, None, :]))
+    out: dict[str, FloatArray] = {"bias": unit}
+    # d = R(lean) (c + gain top_u - a)
+    if f.cos is not None and f.sin is not None:
+        cos, sin = f.cos[0], f.sin[0]
+        rot = np.stack((np.stack((cos, -sin), -1), np.stack((sin, cos), -1)), -2)
+        out["lean"] = (g_d @ np.stack((-along[:, 1], along[:, 0]), -1)[:, :, None])[:, :, 0]
+        g_seg = g_d @ rot
+    else:
+        g_seg = g_d
+    top_u, gain = f.top_u[0], f.gain[0]
+    inside = f.disc_raw[0] > 0.0
+    d_gain_d_disc = np.where(inside, -gain * gain / (4.0 * np.where(inside, f.root[0], 1.0)), 0.0)  # (n, 1)
+    g_seg_u = (g_seg @ top_u[:, :, None])[:, :, 0]  # (n, 2)
+    out["k"] = g_seg_u * (d_gain_d_disc * -4.0 * f.sq_top[0])
+    g_u = gain[:, :, None] * g_seg + g_seg_u[:, :, None] * (d_gain_d_disc * -8.0 * k * top_u)[:, None, :]
+    g_c = g_seg.copy()
+    g_a = eye - g_seg
+    # top_u = (fx X / Z, fy Y / Z)
+    zt = f.zt[0][:, None]
+    g_x, g_y = g_u[:, :, 0] * (fx / zt), g_u[:, :, 1] * (fy / zt)
+    g_z = np.where((f.zt_raw[0] > 1e-9)[:, None], -(g_u @ top_u[:, :, None])[:, :, 0] / zt, 0.0)
+    g_log_fx, g_log_fy = g_u[:, :, 0] * top_u[:, None, 0], g_u[:, :, 1] * top_u[:, None, 1]
+    # (X, Y, Z) = t ray + h N
+    t, rx, ry = f.t[0][:, None], f.rx[0][:, None], f.ry[0][:, None]
+    h = np.broadcast_to(heights_m, f.t.shape)[0][:, None]
+    g_t = g_x * rx + g_y * ry + g_z
+    out["height"] = g_x * normal[0] + g_y * normal[1] + g_z * normal[2]
+    g_n = np.stack((g_x * h, g_y * h, g_z * h), -1)
+    # t = -rho / (N . ray)
+    out["log_rho"] = g_t * t
+    denom = np.minimum(f.denom_raw[0], -1e-9)[:, None]
+    g_denom = np.where((f.denom_raw[0] < -1e-9)[:, None], -g_t * t / denom, 0.0)
+    g_rx = g_x * t + g_denom * normal[0]
+    g_ry = g_y * t + g_denom * normal[1]
+    g_n += g_denom[:, :, None] * np.stack((rx, ry, np.ones_like(rx)), -1)
+    out["normal"] = g_n
+    # ray = (undist_x / fx, undist_y / fy, 1)
+    out["log_fx"] = g_log_fx - g_rx * rx
+    out["log_fy"] = g_log_fy - g_ry * ry
+    g_undist = np.stack((g_rx / fx, g_ry / fy), -1)
+    # undist = rel / (1 + k |rel|^2), rel = a - c
+    spread, undist = f.spread[0], f.undist[0]
+    g_undist_u = (g_undist @ undist[:, :, None])[:, :, 0]
+    out["k"] = out["k"] - g_undist_u * (f.sq_rel[0] / spread)
+    g_rel = (
+        g_undist / spread[:, :, None] - (2.0 * k / spread)[:, :, None] * g_undist_u[:, :, None] * f.rel[0][:, None, :]
+    )
+    out["ankle"] = g_a + g_rel
+    out["c"] = g_c - g_rel
+    return out
+
+
+def residuals_and_jacobians(
+    layout: Layout,
+    theta: FloatArray,
+    normal0: FloatArray,
+    mu0: float,
+    obs: Observations,
+    ankles_n: FloatArray,
+    person: FloatArray,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Whitened residuals (n, 4) of one camera theta (p,) and their exact Jacobians: on theta (n, 4, p), on the
+    latent ankles (n, 4, 2) and on each observation's individual parameters `person` ((n, q), as in
+    `Observations.residuals`) (n, 4, q).
+
+    One pass and its chain rule instead of 2 (p + 2 + q) + 1 passes of central differences: the fit
+    linearises every iteration, and the differences were most of its cost.
+    """
+    cam = unpack(layout, theta[None], normal0, mu0)
+    lean = person[None, :, 1] if person.shape[-1] == 2 else None
+    heights = cam.mu * (1.0 + person[None, :, 0])
+    f = _forward(cam, ankles_n, heights, lean)
+    g = _chain(cam, f, ankles_n, heights)
+    mu = float(cam.mu[0, 0])
+    # N = m / |m|, m = N0 + t1 e1 + t2 e2: dN/dt_i = (e_i - N (N . e_i)) / |m|.
+    e1, e2 = tangent_basis(normal0)
+    m = normal0 + layout.value(theta[None], "t1")[0] * e1 + layout.value(theta[None], "t2")[0] * e2
+    normal, norm = m / np.linalg.norm(m), float(np.linalg.norm(m))
+    split_fy = "log_fy" in layout.index or "log_fy" in layout.fixed
+    columns = {
+        "log_f": g["log_fx"] if split_fy else g["log_fx"] + g["log_fy"],
+        "log_fy": g["log_fy"],
+        "aspect": g["log_fy"],
+        "cx": g["c"][:, :, 0],
+        "cy": g["c"][:, :, 1],
+        "t1": g["normal"] @ ((e1 - normal * (normal @ e1)) / norm),
+        "t2": g["normal"] @ ((e2 - normal * (normal @ e2)) / norm),
+        "log_rho": g["log_rho"],
+        "k": g["k"],
+        "bias": g["bias"],
+        "log_mu": g["height"] * np.broadcast_to(heights, f.t.shape)[0][:, None],
+    }
+    n, p = len(ankles_n), len(layout.names)
+    top_w = 1.0 / obs.top_std_n[:, None, None]
+    j_theta = np.zeros((n, 4, p))
+    if p:
+        j_theta[:, 2:] = np.stack([columns[name] for name in layout.names], -1) * top_w
+    j_ankle = np.zeros((n, 4, 2))
+    j_ankle[:, 0, 0] = j_ankle[:, 1, 1] = 1.0 / obs.ankle_std_n
+    j_ankle[:, 2:] = g["ankle"] * top_w
+    j_person = np.zeros((n, 4, person.shape[-1]))
+    j_person[:, 2:, 0] = g["height"] * mu
+    if lean is not None:
+        j_person[:, 2:, 1] = g["lean"]
+    j_person[:, 2:] *= top_w
+    ankle_r = (ankles_n - obs.bottoms_n) / obs.ankle_std_n[:, None]
+    r = np.concatenate((ankle_r, (f.top[0] - obs.tops_n) / obs.top_std_n[:, None]), -1)
+    return r, j_theta, j_ankle, j_person
