@@ -11,8 +11,8 @@ Levenberg-Marquardt with the structure of bundle adjustment: the normal equation
 each step eliminates the observations' 2x2 ankle blocks, then each individual's q x q block (q = 1: the
 height; q = 2: height and lean, summed over the individual's observations), and solves the small reduced
 system in theta (the Schur complement). The same complement, undamped, is the inverse of theta's marginal
-covariance. Every step costs O(n p^2) for n observations and p camera parameters; Jacobians are central
-differences, evaluated for all observations and all perturbed cameras in two vectorised passes.
+covariance. Every step costs O(n p^2) for n observations and p camera parameters; the Jacobians are exact
+(model.residuals_and_jacobians: one pass through the model and its chain rule, vectorised over observations).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .model import CameraBatch, Layout, Observations, Priors, unpack
+from .model import CameraBatch, Layout, Observations, Priors, residuals_and_jacobians, unpack
 from .vec import FloatArray
 
 _MAX_ITERATIONS = 60
@@ -29,8 +29,6 @@ _MAX_ITERATIONS = 60
 # test, on 12 realistic-simulator cameras of 2 000 observations: f moves by at most 5e-5 relative (~2e-3 of its
 # sigma), the normal by 2e-5 rad, and half the iterations go (9.2 -> 4.8 per fit, 77 -> 55 ms of CPU per solve).
 _CONVERGED_DECREMENT = 1e-6
-_STEP_THETA = 1e-5
-_STEP_PERSON = 1e-5
 
 
 @dataclass(frozen=True)
@@ -79,34 +77,17 @@ class _Linearisation:
 
 
 def _linearise(problem: MapProblem, theta: FloatArray, ankles: FloatArray, person: FloatArray) -> _Linearisation:
-    """Residuals and central-difference Jacobians; `person` holds the individuals' (T, q) parameters.
+    """Residuals and their exact Jacobians; `person` holds the individuals' (T, q) parameters.
 
-    Central differences (truncation error ~1e-10) make the fit converge to the same digits whatever the
-    image's scale or the people's order: forward differences left ~1e-6 of the posterior's flat directions
-    to floating-point luck.
+    Exact rather than differenced: the fit converges to the same digits whatever the image's scale or the
+    people's order (forward differences left ~1e-6 of the posterior's flat directions to floating-point luck,
+    central ones cost 2 (p + 2 + q) + 1 evaluations of the model per linearisation).
     """
     obs = problem.observations
-    per_obs = person[obs.track]
-    p, q = len(theta), person.shape[1]
-    steps = _STEP_THETA * np.maximum(1.0, np.abs(theta))
-    thetas = np.vstack((theta, theta + np.diag(steps), theta - np.diag(steps)))
-    res = obs.residuals(problem.cameras(thetas), ankles, per_obs)  # (2p + 1, n, 4)
-    base = res[0]
-    j_theta = np.moveaxis((res[1 : p + 1] - res[p + 1 :]) / (2.0 * steps[:, None, None]), 0, -1)
-    step_a = _STEP_PERSON * np.maximum(1.0, np.abs(ankles))
-    step_p = _STEP_PERSON * np.maximum(1.0, np.abs(per_obs))
-    moved_a = np.stack([ankles] * (4 + 2 * q))
-    moved_p = np.stack([per_obs] * (4 + 2 * q))
-    for axis in range(2):
-        moved_a[2 * axis, :, axis] += step_a[:, axis]
-        moved_a[2 * axis + 1, :, axis] -= step_a[:, axis]
-    for k in range(q):
-        moved_p[4 + 2 * k, :, k] += step_p[:, k]
-        moved_p[5 + 2 * k, :, k] -= step_p[:, k]
-    res = obs.residuals(problem.cameras(np.vstack([theta] * (4 + 2 * q))), moved_a, moved_p)
-    j_ankle = np.stack([(res[2 * a] - res[2 * a + 1]) / (2.0 * step_a[:, a : a + 1]) for a in range(2)], -1)
-    j_person = np.stack([(res[4 + 2 * k] - res[5 + 2 * k]) / (2.0 * step_p[:, k : k + 1]) for k in range(q)], -1)
-    return _Linearisation(base, j_theta, j_ankle, j_person)
+    r, j_theta, j_ankle, j_person = residuals_and_jacobians(
+        problem.layout, theta, problem.normal0, problem.mu0, obs, ankles, person[obs.track]
+    )
+    return _Linearisation(r, j_theta, j_ankle, j_person)
 
 
 def _person_prior_std(problem: MapProblem, q: int) -> FloatArray:
