@@ -363,6 +363,19 @@ def _chain(cam: CameraBatch, f: _Pass, ankles_n: FloatArray, heights_m: FloatArr
     return out
 
 
+@dataclass(frozen=True)
+class Linearisation:
+    """Whitened residuals of one camera and their exact Jacobians, in the block structure the fit exploits: an
+    observation's ankle residual depends on its latent ankle alone, with weight 1 / ankle_std on each axis, so
+    only the shoulder rows are stored (the full (n, 4, .) Jacobians are these below that diagonal block)."""
+
+    r: FloatArray  # (n, 4) data residuals (ankle 2, shoulder 2)
+    ankle_weight: FloatArray  # (n,) d (ankle residual) / d (latent ankle) on each axis
+    j_theta: FloatArray  # (n, 2, p) shoulder rows, on the Layout's parameters
+    j_ankle: FloatArray  # (n, 2, 2)
+    j_person: FloatArray  # (n, 2, q)
+
+
 def residuals_and_jacobians(
     layout: Layout,
     theta: FloatArray,
@@ -371,10 +384,9 @@ def residuals_and_jacobians(
     obs: Observations,
     ankles_n: FloatArray,
     person: FloatArray,
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """Whitened residuals (n, 4) of one camera theta (p,) and their exact Jacobians: on theta (n, 4, p), on the
-    latent ankles (n, 4, 2) and on each observation's individual parameters `person` ((n, q), as in
-    `Observations.residuals`) (n, 4, q).
+) -> Linearisation:
+    """Whitened residuals of one camera theta (p,) and their exact Jacobians on theta, on the latent ankles
+    and on each observation's individual parameters `person` ((n, q), as in `Observations.residuals`).
 
     One pass and its chain rule instead of 2 (p + 2 + q) + 1 passes of central differences: the fit
     linearises every iteration, and the differences were most of its cost.
@@ -384,7 +396,6 @@ def residuals_and_jacobians(
     heights = cam.mu * (1.0 + person[None, :, 0])
     f = _forward(cam, ankles_n, heights, lean)
     g = _chain(cam, f, ankles_n, heights)
-    mu = float(cam.mu[0, 0])
     # N = m / |m|, m = N0 + t1 e1 + t2 e2: dN/dt_i = (e_i - N (N . e_i)) / |m|.
     e1, e2 = tangent_basis(normal0)
     m = normal0 + layout.value(theta[None], "t1")[0] * e1 + layout.value(theta[None], "t2")[0] * e2
@@ -403,19 +414,10 @@ def residuals_and_jacobians(
         "bias": g["bias"],
         "log_mu": g["height"] * np.broadcast_to(heights, f.t.shape)[0][:, None],
     }
-    n, p = len(ankles_n), len(layout.names)
     top_w = 1.0 / obs.top_std_n[:, None, None]
-    j_theta = np.zeros((n, 4, p))
-    if p:
-        j_theta[:, 2:] = np.stack([columns[name] for name in layout.names], -1) * top_w
-    j_ankle = np.zeros((n, 4, 2))
-    j_ankle[:, 0, 0] = j_ankle[:, 1, 1] = 1.0 / obs.ankle_std_n
-    j_ankle[:, 2:] = g["ankle"] * top_w
-    j_person = np.zeros((n, 4, person.shape[-1]))
-    j_person[:, 2:, 0] = g["height"] * mu
-    if lean is not None:
-        j_person[:, 2:, 1] = g["lean"]
-    j_person[:, 2:] *= top_w
+    j_theta = np.stack([columns[name] for name in layout.names], -1) * top_w
+    own = [g["height"] * float(cam.mu[0, 0])] + ([g["lean"]] if lean is not None else [])
+    ankle_w = 1.0 / obs.ankle_std_n
     ankle_r = (ankles_n - obs.bottoms_n) / obs.ankle_std_n[:, None]
     r = np.concatenate((ankle_r, (f.top[0] - obs.tops_n) / obs.top_std_n[:, None]), -1)
-    return r, j_theta, j_ankle, j_person
+    return Linearisation(r, ankle_w, j_theta, g["ankle"] * top_w, np.stack(own, -1) * top_w)
