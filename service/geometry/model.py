@@ -295,71 +295,70 @@ class Observations:
         return np.concatenate((ankle_r, (top - self.tops_n) / self.top_std_n[:, None]), -1)
 
 
-def _chain(cam: CameraBatch, f: _Pass, ankles_n: FloatArray, heights_m: FloatArray) -> dict[str, FloatArray]:
-    """d top / d (each of the model's natural quantities), (n, 2, ...) per observation, for one camera (K = 1).
+def _chain(cam: CameraBatch, f: _Pass, heights_m: FloatArray) -> dict[str, FloatArray]:
+    """d top / d (each of the model's natural quantities) for one camera (K = 1): (2, n) arrays, the shoulder's
+    two components over the observations (the component first keeps every operation on contiguous rows).
 
     Reverse accumulation from the shoulder: top has two components, so carrying d top / d (intermediate) back
-    through the pass costs a few (n, 2, 2) products however many parameters there are. Where a clamp holds a
-    quantity its derivative is 0 (a ray that misses the ground, a shoulder behind the camera, a point beyond
-    the lens's horizon, a zero-length segment), as a step that stays inside the clamp would see it.
+    through the pass costs a few array operations per step however many parameters there are. Where a clamp
+    holds a quantity its derivative is 0 (a ray that misses the ground, a shoulder behind the camera, a point
+    beyond the lens's horizon, a zero-length segment), as a step that stays inside the clamp would see it.
     """
     fx, fy, k, bias = (float(x[0, 0]) for x in (cam.fx, cam.fy, cam.k, cam.bias))
-    normal = cam.normal[0, 0]
-    eye = np.eye(2)
-    along, length = f.along[0], f.length[0]
-    unit = along / length
-    # top = a + d + bias d / |d|
-    held = (f.length_raw[0] <= 1e-12)[:, :, None]
-    g_d = eye + (bias / length)[:, :, None] * (eye - np.where(held, 0.0, unit[:, :, None] * unit[:, None, :]))
+    n0, n1, n2 = (float(x) for x in cam.normal[0, 0])
+    e_x, e_y = np.array([[1.0], [0.0]]), np.array([[0.0], [1.0]])
+    # top = a + d + bias d / |d|: d top / d d = (1 + s) I - s u u^T, s = bias / |d|, u = d / |d|.
+    d_x, d_y = f.along[0, :, 0], f.along[0, :, 1]
+    length = f.length[0, :, 0]
+    unit = np.stack((d_x, d_y)) / length
+    s = bias / length
+    turn = np.where(f.length_raw[0, :, 0] > 1e-12, s, 0.0)
+    g_dx = -(turn * unit[0]) * unit + (1.0 + s) * e_x
+    g_dy = -(turn * unit[1]) * unit + (1.0 + s) * e_y
     out: dict[str, FloatArray] = {"bias": unit}
-    # d = R(lean) (c + gain top_u - a)
+    # d = R(lean) b, b = c + gain top_u - a: d d / d lean = (-d_y, d_x), d d / d b = R.
     if f.cos is not None and f.sin is not None:
         cos, sin = f.cos[0], f.sin[0]
-        rot = np.stack((np.stack((cos, -sin), -1), np.stack((sin, cos), -1)), -2)
-        out["lean"] = (g_d @ np.stack((-along[:, 1], along[:, 0]), -1)[:, :, None])[:, :, 0]
-        g_seg = g_d @ rot
+        out["lean"] = g_dy * d_x - g_dx * d_y
+        g_bx, g_by = g_dx * cos + g_dy * sin, g_dy * cos - g_dx * sin
     else:
-        g_seg = g_d
-    top_u, gain = f.top_u[0], f.gain[0]
-    inside = f.disc_raw[0] > 0.0
-    d_gain_d_disc = np.where(inside, -gain * gain / (4.0 * np.where(inside, f.root[0], 1.0)), 0.0)  # (n, 1)
-    g_seg_u = (g_seg @ top_u[:, :, None])[:, :, 0]  # (n, 2)
-    out["k"] = g_seg_u * (d_gain_d_disc * -4.0 * f.sq_top[0])
-    g_u = gain[:, :, None] * g_seg + g_seg_u[:, :, None] * (d_gain_d_disc * -8.0 * k * top_u)[:, None, :]
-    g_c = g_seg.copy()
-    g_a = eye - g_seg
+        g_bx, g_by = g_dx, g_dy
+    # gain = 2 / (1 + sqrt(disc)), disc = 1 - 4 k |top_u|^2
+    p_x, p_y = f.top_u[0, :, 0], f.top_u[0, :, 1]
+    inside = f.disc_raw[0, :, 0] > 0.0
+    gain = f.gain[0, :, 0]
+    d_gain = np.where(inside, -gain * gain / (4.0 * np.where(inside, f.root[0, :, 0], 1.0)), 0.0)  # d / d disc
+    g_b_p = g_bx * p_x + g_by * p_y
+    g_k = g_b_p * (d_gain * -4.0 * f.sq_top[0, :, 0])
+    lens = g_b_p * (d_gain * -8.0 * k)
+    g_px, g_py = gain * g_bx + lens * p_x, gain * g_by + lens * p_y
     # top_u = (fx X / Z, fy Y / Z)
-    zt = f.zt[0][:, None]
-    g_x, g_y = g_u[:, :, 0] * (fx / zt), g_u[:, :, 1] * (fy / zt)
-    g_z = np.where((f.zt_raw[0] > 1e-9)[:, None], -(g_u @ top_u[:, :, None])[:, :, 0] / zt, 0.0)
-    g_log_fx, g_log_fy = g_u[:, :, 0] * top_u[:, None, 0], g_u[:, :, 1] * top_u[:, None, 1]
+    zt = f.zt[0]
+    g_x, g_y = g_px * (fx / zt), g_py * (fy / zt)
+    g_z = np.where(f.zt_raw[0] > 1e-9, -(g_px * p_x + g_py * p_y) / zt, 0.0)
     # (X, Y, Z) = t ray + h N
-    t, rx, ry = f.t[0][:, None], f.rx[0][:, None], f.ry[0][:, None]
-    h = np.broadcast_to(heights_m, f.t.shape)[0][:, None]
+    t, rx, ry = f.t[0], f.rx[0], f.ry[0]
+    h = np.broadcast_to(heights_m, f.t.shape)[0]
     g_t = g_x * rx + g_y * ry + g_z
-    out["height"] = g_x * normal[0] + g_y * normal[1] + g_z * normal[2]
-    g_n = np.stack((g_x * h, g_y * h, g_z * h), -1)
+    out["height"] = g_x * n0 + g_y * n1 + g_z * n2
     # t = -rho / (N . ray)
     out["log_rho"] = g_t * t
-    denom = np.minimum(f.denom_raw[0], -1e-9)[:, None]
-    g_denom = np.where((f.denom_raw[0] < -1e-9)[:, None], -g_t * t / denom, 0.0)
-    g_rx = g_x * t + g_denom * normal[0]
-    g_ry = g_y * t + g_denom * normal[1]
-    g_n += g_denom[:, :, None] * np.stack((rx, ry, np.ones_like(rx)), -1)
-    out["normal"] = g_n
+    denom = np.minimum(f.denom_raw[0], -1e-9)
+    g_denom = np.where(f.denom_raw[0] < -1e-9, -g_t * (t / denom), 0.0)
+    g_rx, g_ry = g_x * t + g_denom * n0, g_y * t + g_denom * n1
+    out["normal"] = np.stack((g_x * h + g_denom * rx, g_y * h + g_denom * ry, g_z * h + g_denom))  # (3, 2, n)
     # ray = (undist_x / fx, undist_y / fy, 1)
-    out["log_fx"] = g_log_fx - g_rx * rx
-    out["log_fy"] = g_log_fy - g_ry * ry
-    g_undist = np.stack((g_rx / fx, g_ry / fy), -1)
+    out["log_fx"] = g_px * p_x - g_rx * rx
+    out["log_fy"] = g_py * p_y - g_ry * ry
+    g_ux, g_uy = g_rx / fx, g_ry / fy
     # undist = rel / (1 + k |rel|^2), rel = a - c
-    spread, undist = f.spread[0], f.undist[0]
-    g_undist_u = (g_undist @ undist[:, :, None])[:, :, 0]
-    out["k"] = out["k"] - g_undist_u * (f.sq_rel[0] / spread)
-    g_rel = (
-        g_undist / spread[:, :, None] - (2.0 * k / spread)[:, :, None] * g_undist_u[:, :, None] * f.rel[0][:, None, :]
-    )
-    out["ankle"] = g_a + g_rel
-    out["c"] = g_c - g_rel
+    spread = f.spread[0, :, 0]
+    g_u_u = g_ux * f.undist[0, :, 0] + g_uy * f.undist[0, :, 1]
+    out["k"] = g_k - g_u_u * (f.sq_rel[0, :, 0] / spread)
+    pull = g_u_u * (2.0 * k / spread)
+    g_rel_x, g_rel_y = g_ux / spread - pull * f.rel[0, :, 0], g_uy / spread - pull * f.rel[0, :, 1]
+    out["ankle_x"], out["ankle_y"] = e_x - g_bx + g_rel_x, e_y - g_by + g_rel_y
+    out["cx"], out["cy"] = g_bx - g_rel_x, g_by - g_rel_y
     return out
 
 
@@ -395,7 +394,7 @@ def residuals_and_jacobians(
     lean = person[None, :, 1] if person.shape[-1] == 2 else None
     heights = cam.mu * (1.0 + person[None, :, 0])
     f = _forward(cam, ankles_n, heights, lean)
-    g = _chain(cam, f, ankles_n, heights)
+    g = _chain(cam, f, heights)
     # N = m / |m|, m = N0 + t1 e1 + t2 e2: dN/dt_i = (e_i - N (N . e_i)) / |m|.
     e1, e2 = tangent_basis(normal0)
     m = normal0 + layout.value(theta[None], "t1")[0] * e1 + layout.value(theta[None], "t2")[0] * e2
@@ -405,19 +404,28 @@ def residuals_and_jacobians(
         "log_f": g["log_fx"] if split_fy else g["log_fx"] + g["log_fy"],
         "log_fy": g["log_fy"],
         "aspect": g["log_fy"],
-        "cx": g["c"][:, :, 0],
-        "cy": g["c"][:, :, 1],
-        "t1": g["normal"] @ ((e1 - normal * (normal @ e1)) / norm),
-        "t2": g["normal"] @ ((e2 - normal * (normal @ e2)) / norm),
+        "cx": g["cx"],
+        "cy": g["cy"],
+        "t1": np.tensordot((e1 - normal * (normal @ e1)) / norm, g["normal"], 1),
+        "t2": np.tensordot((e2 - normal * (normal @ e2)) / norm, g["normal"], 1),
         "log_rho": g["log_rho"],
         "k": g["k"],
         "bias": g["bias"],
-        "log_mu": g["height"] * np.broadcast_to(heights, f.t.shape)[0][:, None],
+        "log_mu": g["height"] * np.broadcast_to(heights, f.t.shape)[0],
     }
-    top_w = 1.0 / obs.top_std_n[:, None, None]
-    j_theta = np.stack([columns[name] for name in layout.names], -1) * top_w
+    top_w = 1.0 / obs.top_std_n
+
+    def whitened(derivatives: list[FloatArray]) -> FloatArray:
+        """(n, 2, m) from m (2, n) derivatives of the shoulder."""
+        return np.stack([(d * top_w).T for d in derivatives], -1)
+
     own = [g["height"] * float(cam.mu[0, 0])] + ([g["lean"]] if lean is not None else [])
-    ankle_w = 1.0 / obs.ankle_std_n
     ankle_r = (ankles_n - obs.bottoms_n) / obs.ankle_std_n[:, None]
     r = np.concatenate((ankle_r, (f.top[0] - obs.tops_n) / obs.top_std_n[:, None]), -1)
-    return Linearisation(r, ankle_w, j_theta, g["ankle"] * top_w, np.stack(own, -1) * top_w)
+    return Linearisation(
+        r,
+        1.0 / obs.ankle_std_n,
+        whitened([columns[name] for name in layout.names]),
+        whitened([g["ankle_x"], g["ankle_y"]]),
+        whitened(own),
+    )
