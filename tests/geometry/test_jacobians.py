@@ -146,3 +146,33 @@ def test_every_parameter_has_a_column_that_moves_the_shoulder() -> None:
     assert np.all(j_theta[:, :2] == 0.0) and np.all(j_person[:, :2] == 0.0)
     assert np.all(np.abs(j_person[:, 2:]).max(axis=(0, 1)) > 1e-3)
     np.testing.assert_array_equal(j_ankle[:, :2], np.eye(2) / 0.003 * np.ones((20, 1, 1)))
+
+
+def test_beyond_the_lens_horizon_the_derivatives_are_what_central_differences_see() -> None:
+    """Shoulders beyond the lens's horizon (the distortion's discriminant clamped at 0): its derivative is 0, as
+    a step inside the clamp sees. (A ray above the horizon puts the shoulder on the ankle, a segment ~1e-9 long
+    whose differences are rounding, so that clamp is not compared.)"""
+    priors = Priors(0.075, 0.01, 0.004, 0.03, 0.04, 0.05, 0.03)
+    layout = Layout.build(True, None, priors, estimate_k=True)
+    theta = np.array([np.log(1.2), 0.01, 0.02, -0.03, 0.02, -0.01, np.log(5.0), 0.3, 0.005, 0.02])
+    normal0 = np.array([0.0, -np.cos(0.5), -np.sin(0.5)])
+    rng = np.random.default_rng(1)
+    # Undistorted radii never pass the horizon (max r / (1 + k r^2) = 1 / (2 sqrt k)); shoulders outside
+    # ankles at the widest radius do. The view is widened to find them.
+    ankles = rng.uniform([-2.0, -1.0], [2.0, 2.0], (400, 2))
+    person = np.column_stack((rng.normal(0.0, 0.05, 400), rng.normal(0.0, 0.03, 400)))
+    cam = unpack(layout, theta[None], normal0, MU0_M)
+    f = _forward(cam, ankles, cam.mu * (1.0 + person[None, :, 0]), person[None, :, 1])
+    keep = (f.denom_raw[0] < -0.05) & (np.abs(f.disc_raw[0, :, 0]) > 0.05)
+    keep &= (f.zt_raw[0] > 0.05 * f.t[0]) & (f.length_raw[0, :, 0] > 1e-3)
+    assert (keep & (f.disc_raw[0, :, 0] < 0.0)).sum() >= 10 and (keep & (f.disc_raw[0, :, 0] > 0.0)).sum() >= 10
+    ankles, person, m = ankles[keep], person[keep], int(keep.sum())
+    obs = Observations(ankles, ankles, np.full(m, 0.003), np.full(m, 0.005), np.arange(m), m)
+    j_theta, j_ankle, j_person = _full(residuals_and_jacobians(layout, theta, normal0, MU0_M, obs, ankles, person))
+
+    def of_theta(t: np.ndarray) -> np.ndarray:
+        return obs.residuals(unpack(layout, t[None], normal0, MU0_M), ankles, person)[0]
+
+    _close(j_theta, _central(of_theta, theta), "theta")
+    _close(j_ankle, _central(lambda a: obs.residuals(cam, a, person)[0], ankles), "ankle")
+    _close(j_person, _central(lambda h: obs.residuals(cam, ankles, h)[0], person), "person")
