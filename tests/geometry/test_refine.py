@@ -9,7 +9,7 @@ from bench.moving_camera import CameraPose
 from bench.simulate import SceneConfig, draw_scene
 from service.geometry import CalibrationProblem, calibrate
 from service.geometry.model import Layout, Priors
-from service.geometry.refine import _consider_covariance
+from service.geometry.refine import _consider_covariance, _track_sums
 from tests.support.geometry import angle_deg, ideal
 
 
@@ -107,3 +107,11 @@ def test_leaning_individuals_do_not_pull_the_camera_along_what_people_cannot_det
     assert cal.fx == pytest.approx(camera.focal_px, rel=0.015)
     assert abs(cal.cy - 540.0) < 15.0
     assert angle_deg(cal.normal, camera.normal) < 0.3
+
+
+def test_individuals_sums_are_np_add_at_in_observation_order() -> None:
+    rng = np.random.default_rng(2)
+    blocks, track = rng.normal(size=(300, 2, 13)), rng.integers(0, 90, 300)
+    expected = np.zeros((95, 2, 13))
+    np.add.at(expected, track, blocks)
+    np.testing.assert_array_equal(_track_sums(blocks, track, 95), expected)
