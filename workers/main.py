@@ -202,10 +202,11 @@ class _Recovers:
 # The memory is short: a burst (the seed images of a new camera) must not leave its queue behind the others for long.
 QUEUE_SHARES: dict[str, float] = {FRAMES_QUEUE: 2.0, POSE_QUEUE: 2.0, CALIBRATION_QUEUE: 1.0}
 SHARE_HALF_LIFE_S = 10.0
-# Aging: a queue whose oldest job has waited longer than its target wait gets its share multiplied by
-# wait / target, up to MAX_AGING. Solves are due within 10 s of a camera's evidence calling for one and an image
-# frame is answered within 2 s (issue 17); measuring has no such target, as a frames job answers every frame its
-# camera has waiting however long it waited, so it keeps its share and gives the others up to MAX_AGING x theirs.
+# Aging: a queue's share grows with its oldest job's wait, from 1x when fresh to MAX_AGING x at its target wait (and
+# stays there): a deadline is met by raising a job's priority before it passes, not after. Solves are due within
+# 10 s of a camera's evidence calling for one and an image frame is answered within 2 s (issue 17); measuring has no
+# such target, as a frames job answers every frame its camera has waiting however long it waited, so it keeps its
+# share and gives the others up to MAX_AGING x theirs.
 WAIT_TARGET_S: dict[str, float] = {CALIBRATION_QUEUE: 10.0, POSE_QUEUE: 2.0}
 MAX_AGING = 4.0
 
@@ -225,9 +226,8 @@ class _SharesTime:
 
     Fixed shares left solves waiting a minute and more under that load (the solves of fifty cameras fall due
     together, and one in five of the worker's seconds clears a few per second): a queue whose oldest job has waited
-    past its WAIT_TARGET_S gets a larger share while it waits (see MAX_AGING), and its usual one once it has caught
-    up. Measuring, which has no target, keeps its own share whatever the others wait, so it is slowed, never
-    stopped.
+    gets a larger share while it waits, MAX_AGING x by its WAIT_TARGET_S, and its usual one once it has caught up.
+    Measuring, which has no target, keeps its own share whatever the others wait, so it is slowed, never stopped.
     """
 
     _ordered_queues: list[Queue]
@@ -263,12 +263,12 @@ class _SharesTime:
         return max(0.0, (self.wall_clock() - utcparse(stamp.decode())).total_seconds())
 
     def share(self, queue: Queue) -> float | None:
-        """The queue's share of the worker now: QUEUE_SHARES, aged by its oldest job's wait past WAIT_TARGET_S."""
+        """The queue's share of the worker now: QUEUE_SHARES, aged by its oldest job's wait towards WAIT_TARGET_S."""
         share = QUEUE_SHARES.get(queue.name)
         target = WAIT_TARGET_S.get(queue.name)
         if share is None or target is None:
             return share
-        return share * min(max(1.0, self.oldest_wait_s(queue) / target), MAX_AGING)
+        return share * (1.0 + (MAX_AGING - 1.0) * min(self.oldest_wait_s(queue) / target, 1.0))
 
     def _share_order(self) -> None:
         now = self.clock()
