@@ -208,7 +208,8 @@ def measure_many(
 
     if unc is not None:
         # Calibration: each person's sensitivity to the canonical parameters.
-        # (N, C, 3) in memory, read as (N, 3, C): np.take gathers each pair's rows twice as fast as fancy indexing.
+        # (N, C, 3) in memory, read as (N, 3, C): np.take gathers each pair's rows twice as fast as fancy indexing,
+        # in the layout fancy indexing gives, so einsum sums in the same order (results do not move by an ulp).
         dx_dc = np.ascontiguousarray(
             np.moveaxis((xs[1 : count + 1] - x0) / _camera_steps(cal, count)[:, None, None], 0, 1)
         )

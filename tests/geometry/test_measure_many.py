@@ -15,8 +15,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from service.geometry import Calibration, OpenCVLens, Uncertainty, measure
-from service.geometry.measure import measure_many
+from service.geometry import Calibration, OpenCVLens, Uncertainty, measure, measure_many
 from tests.render.scenes import calibration_of, tilted_scene
 
 # 1-sigma of the canonical parameters (fx, fy, t1, t2, rho, cx, cy, k): a camera solved from a modest crowd.
