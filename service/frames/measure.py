@@ -38,6 +38,7 @@ PARTIAL_HEIGHT_STD_M = 0.3
 BOX_CONTACT_STD_FRACTION = 0.06
 
 _NAN_POINT = (math.nan, math.nan)
+_BOX_PREFIXES = (BOX_REASON, f"{STATIC_REASON}; {BOX_REASON}")
 
 
 @dataclass(frozen=True)
@@ -78,7 +79,9 @@ def _shoulder_priors(people: Sequence[StoredCentres | PersonIn]) -> tuple[np.nda
     std_m = np.full(len(people), DEFAULT_HEIGHT_STD_M)
     contact = np.zeros(len(people))
     for index, person in enumerate(people):
-        reason = person.unusable_reason or ""
+        reason = person.unusable_reason
+        if not reason:  # most people: calibration evidence, standing
+            continue
         if _from_box(reason):
             contact[index] = BOX_CONTACT_STD_FRACTION
         elif reason.startswith(SEATED_REASON):
@@ -92,12 +95,13 @@ def _placed_from(person: StoredCentres | PersonIn, has_bottom: bool) -> str:
     """`ankles`, `box` (the detector box's bottom, service.frames.keypoints.place_from_boxes) or `shoulders`."""
     if not has_bottom:
         return "shoulders"
-    return "box" if _from_box(person.unusable_reason or "") else "ankles"
+    reason = person.unusable_reason
+    return "box" if reason and _from_box(reason) else "ankles"
 
 
 def _from_box(reason: str) -> bool:
     """Whether the verdict says the person stands on their box's bottom (also when flagged static after it)."""
-    return reason.startswith(BOX_REASON) or reason.startswith(f"{STATIC_REASON}; {BOX_REASON}")
+    return reason.startswith(_BOX_PREFIXES)
 
 
 def measure_people(
