@@ -4,6 +4,9 @@ Shared by the synchronous `POST .../distances` endpoint, the measuring job and `
 frame's stored result, an on-demand measurement of the same people and an offline run are computed by the same
 code. No I/O and no store: callers read the calibration and the people, and write the outcome back
 (service.frames.service does that for stored frames).
+
+A measuring job hands a whole chunk of frames to `measure_frames`: the geometry places and measures all their people
+in one vectorised pass (service.geometry.measure.measure_many) and only the documents are built frame by frame.
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ import pydantic_core
 from service.domain import PersonIn, StoredCentres, ViolationIn, centres, track_id_of
 from service.frames.keypoints import BOX_REASON, PARTIAL_REASON, SEATED_REASON, STATIC_REASON
 from service.frames.schemas import FrameResult
-from service.geometry import Calibration, measure
+from service.geometry import Calibration, Measurements, measure_many
 from service.geometry.priors import DEFAULT_HEIGHT_STD_M
 
 # Shoulder height of the people who are not calibration evidence, for placing them from their shoulders: a fraction
@@ -35,28 +38,30 @@ PARTIAL_HEIGHT_STD_M = 0.3
 BOX_CONTACT_STD_FRACTION = 0.06
 
 _NAN_POINT = (math.nan, math.nan)
+_BOX_PREFIXES = (BOX_REASON, f"{STATIC_REASON}; {BOX_REASON}")
 
 
 @dataclass(frozen=True)
 class FrameComputation:
-    """What measuring a frame produced: the result (as a JSON-ready document) and the violation rows for the store.
+    """What measuring a frame produced: the result (encoded, as `frames.result` stores it) and the violation rows.
 
-    The document is built here from plain numbers, in FrameResult's shape; the worker stores it as it is, and a
-    FrameResult model is made only where one is needed (an HTTP answer, the offline writers). Validating 190
-    pairs per frame in the worker cost as much as measuring them, and proved nothing the tests do not.
+    The document is built from plain numbers, in FrameResult's shape, and encoded at once: in Rust (pydantic-core),
+    five times faster than the json module for a frame's 190 pairs, with non-finite numbers already None. A
+    FrameResult model is made only where one is needed (an HTTP answer, the offline writers): validating 190 pairs
+    per frame in the worker cost as much as measuring them, and proved nothing the tests do not. Encoding at once
+    drops each frame's dicts before the next frame's are built: a chunk's documents alive together (ten thousand
+    dicts) made the garbage collector's passes cost more than building them.
     """
 
-    document: dict[str, Any]
+    encoded: str
     violations: list[ViolationIn]
 
     @property
     def result(self) -> FrameResult:
-        return FrameResult.model_validate(self.document)
+        return FrameResult.model_validate_json(self.encoded)
 
     def result_json(self) -> str:
-        """The result as stored in `frames.result`, encoded now: in Rust (pydantic-core), five times faster than the
-        json module for a frame's 190 pairs. Non-finite numbers are already None; any left would be null."""
-        return pydantic_core.to_json(self.document, inf_nan_mode="null").decode()
+        return self.encoded
 
 
 def _ground_axes(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -74,7 +79,9 @@ def _shoulder_priors(people: Sequence[StoredCentres | PersonIn]) -> tuple[np.nda
     std_m = np.full(len(people), DEFAULT_HEIGHT_STD_M)
     contact = np.zeros(len(people))
     for index, person in enumerate(people):
-        reason = person.unusable_reason or ""
+        reason = person.unusable_reason
+        if not reason:  # most people: calibration evidence, standing
+            continue
         if _from_box(reason):
             contact[index] = BOX_CONTACT_STD_FRACTION
         elif reason.startswith(SEATED_REASON):
@@ -88,12 +95,13 @@ def _placed_from(person: StoredCentres | PersonIn, has_bottom: bool) -> str:
     """`ankles`, `box` (the detector box's bottom, service.frames.keypoints.place_from_boxes) or `shoulders`."""
     if not has_bottom:
         return "shoulders"
-    return "box" if _from_box(person.unusable_reason or "") else "ankles"
+    reason = person.unusable_reason
+    return "box" if reason and _from_box(reason) else "ankles"
 
 
 def _from_box(reason: str) -> bool:
     """Whether the verdict says the person stands on their box's bottom (also when flagged static after it)."""
-    return reason.startswith(BOX_REASON) or reason.startswith(f"{STATIC_REASON}; {BOX_REASON}")
+    return reason.startswith(_BOX_PREFIXES)
 
 
 def measure_people(
@@ -118,54 +126,119 @@ def measure_people(
     calibration estimated). With a calibration graded `unreliable` the pairs are measured but none is a
     violation: its verdicts are not trusted, so they raise no events and no alerts (`alerts_suppressed`).
     """
-    points = [centres(person) for person in people]
+    return measure_frames(
+        [people],
+        cal,
+        distance_threshold_m=distance_threshold_m,
+        calibration_version=calibration_version,
+        noise_px=noise_px,
+        calibration_grade=calibration_grade,
+    )[0]
+
+
+def measure_frames(
+    frames: Sequence[Sequence[StoredCentres | PersonIn]],
+    cal: Calibration,
+    *,
+    distance_threshold_m: float,
+    calibration_version: int = 0,
+    noise_px: float | None = None,
+    calibration_grade: str | None = None,
+) -> list[FrameComputation]:
+    """Each frame's people measured as `measure_people` does, all frames in one geometric pass (a measuring job's
+    chunk); pairs are formed within a frame only. One person the geometry refuses raises for the whole call: the
+    caller retries frame by frame to fail only that frame (service.frames.service.frame_outcomes)."""
+    everyone = [person for people in frames for person in people]
+    points = [centres(person) for person in everyone]
     tops = np.array([s if s is not None else _NAN_POINT for s, _ in points], dtype=float).reshape(-1, 2)
     bottoms = np.array([a if a is not None else _NAN_POINT for _, a in points], dtype=float).reshape(-1, 2)
-    n = len(points)
-    if n:
-        scale, std_m, contact = _shoulder_priors(people)
-        m = measure(
-            cal, tops, bottoms, noise_px=noise_px, height_std_m=std_m, height_scale=scale, contact_std_fraction=contact
-        )
-        positions, distances, stds = m.points_bottom, m.distances_m, m.distance_std_m
-    else:
-        positions, distances, stds = np.zeros((0, 3)), np.zeros((0, 0)), np.zeros((0, 0))
+    scale, std_m, contact = _shoulder_priors(everyone)
+    m = measure_many(
+        cal,
+        tops,
+        bottoms,
+        [len(people) for people in frames],
+        noise_px=noise_px,
+        height_std_m=std_m,
+        height_scale=scale,
+        contact_std_fraction=contact,
+    )
     foot = -cal.rho * cal.normal  # the point on the ground straight below the camera
     right, forward = _ground_axes(cal.normal)
+    positions = m.points_bottom
     placed = np.all(np.isfinite(positions), axis=1)
-    static = [(person.unusable_reason or "").startswith(STATIC_REASON) for person in people]
-    ground = np.stack(((positions - foot) @ right, (positions - foot) @ forward), -1)
-    placed_people = [
-        {
-            "index": index,
-            "placed_from": _placed_from(people[index], points[index][1] is not None) if is_placed else None,
-            "ground_m": ground_m if is_placed else None,
-            "point_m": point_m if is_placed else None,
-            "static": still,
-            "track_id": track_id_of(person),
-        }
-        for index, (person, is_placed, ground_m, point_m, still) in enumerate(
-            zip(people, placed.tolist(), ground.tolist(), positions.tolist(), static, strict=True)
-        )
+    # Per person and per pair as plain Python values for the whole chunk; each frame's document takes its slices.
+    static = [(person.unusable_reason or "").startswith(STATIC_REASON) for person in everyone]
+    placed_from = [
+        _placed_from(person, bottom is not None) if is_placed else None
+        for person, (_, bottom), is_placed in zip(everyone, points, placed.tolist(), strict=True)
     ]
-    # Pairs i < j, from plain Python values: a frame of 20 people has 190 pairs.
-    first, second = np.triu_indices(n, 1)
-    pair_m, pair_std_m = distances[first, second], stds[first, second]
-    known = np.isfinite(pair_m)
-    pairs = [
-        {"i": i, "j": j, "distance_m": d if ok else None, "distance_std_m": sd if ok and math.isfinite(sd) else None}
-        for i, j, d, sd, ok in zip(
-            first.tolist(), second.tolist(), pair_m.tolist(), pair_std_m.tolist(), known.tolist(), strict=True
-        )
-    ]
+    point_m = positions.tolist()
+    pair_m, pair_std_m = _pair_values(m)
+    static_rows = np.array(static, dtype=bool)
     # A static "person" (a mannequin, cameras.static_spots) is measured like anyone but raises no violation.
-    close = [
-        pair
-        for pair in pairs
-        if pair["distance_m"] is not None
-        and pair["distance_m"] < distance_threshold_m
-        and not (static[pair["i"]] or static[pair["j"]])
-    ]
+    with np.errstate(invalid="ignore"):
+        close = (m.distances_m < distance_threshold_m) & ~static_rows[m.first] & ~static_rows[m.second]
+    close_at = np.flatnonzero(close)
+    close_starts = np.searchsorted(close_at, m.pair_starts).tolist()
+    close_at_list = close_at.tolist()
+    pair_frame_start = np.repeat(m.frame_starts[:-1], np.diff(m.pair_starts))
+    local_first, local_second = (m.first - pair_frame_start).tolist(), (m.second - pair_frame_start).tolist()
+    frame_starts, pair_starts = m.frame_starts.tolist(), m.pair_starts.tolist()
+    computations = []
+    for f in range(len(frames)):
+        n0, p0, p1 = frame_starts[f], pair_starts[f], pair_starts[f + 1]
+        # A matrix product per frame, not one for the chunk: BLAS rounds a row differently with the number of rows,
+        # and a frame's result must not depend on the chunk it was measured in.
+        offset = positions[n0 : frame_starts[f + 1]] - foot
+        ground = np.stack((offset @ right, offset @ forward), -1).tolist()
+        people = [
+            {
+                "index": index,
+                "placed_from": placed_from[row],
+                "ground_m": ground[index] if placed_from[row] else None,
+                "point_m": point_m[row] if placed_from[row] else None,
+                "static": static[row],
+                "track_id": track_id_of(person),
+            }
+            for index, (row, person) in enumerate(enumerate(frames[f], n0))
+        ]
+        # Pairs i < j, from plain Python values: a frame of 20 people has 190 pairs.
+        pairs = [
+            {"i": i, "j": j, "distance_m": d, "distance_std_m": sd}
+            for i, j, d, sd in zip(
+                local_first[p0:p1], local_second[p0:p1], pair_m[p0:p1], pair_std_m[p0:p1], strict=True
+            )
+        ]
+        violating = [pairs[k - p0] for k in close_at_list[close_starts[f] : close_starts[f + 1]]]
+        computations.append(
+            _computation(people, pairs, violating, distance_threshold_m, calibration_version, calibration_grade)
+        )
+    return computations
+
+
+def _pair_values(m: Measurements) -> tuple[list[float | None], list[float | None]]:
+    """Every pair's distance and sigma as plain values, None where unknown (an unplaced person, a sigma that is
+    not finite): the few unknowns are patched into the lists rather than tested pair by pair."""
+    known = np.isfinite(m.distances_m)
+    distances: list[float | None] = m.distances_m.tolist()
+    stds: list[float | None] = m.distance_std_m.tolist()
+    for k in np.flatnonzero(~known).tolist():
+        distances[k] = None
+    for k in np.flatnonzero(~(known & np.isfinite(m.distance_std_m))).tolist():
+        stds[k] = None
+    return distances, stds
+
+
+def _computation(
+    people: list[dict[str, Any]],
+    pairs: list[dict[str, Any]],
+    close: list[dict[str, Any]],
+    distance_threshold_m: float,
+    calibration_version: int,
+    calibration_grade: str | None,
+) -> FrameComputation:
+    """One frame's document and violation rows from its people, pairs and the pairs under the threshold."""
     suppressed = None
     if calibration_grade == "unreliable":
         if close:
@@ -178,10 +251,10 @@ def measure_people(
     document = {
         "calibration_version": calibration_version,
         "distance_threshold_m": distance_threshold_m,
-        "people": placed_people,
+        "people": people,
         "pairs": pairs,
         "violations": close,
         "calibration_grade": calibration_grade,
         "alerts_suppressed": suppressed,
     }
-    return FrameComputation(document=document, violations=violations)
+    return FrameComputation(pydantic_core.to_json(document, inf_nan_mode="null").decode(), violations)

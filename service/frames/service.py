@@ -2,6 +2,7 @@
 
 `measure_pending` is what the measuring job runs (workers.jobs.measure_frames is its RQ adapter); the routes use
 `people_for_camera`, and the synchronous distances route `compute_frame_result`.
+A chunk's frames are measured together (`frame_outcomes`): one geometric pass for all their people.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from service.calibration.repository import current_calibration, movement_state
 from service.calibration.service import may_be_due, solve_due
 from service.domain import DONE, FAILED, GONE, PENDING, FrameOutcome, PersonIn, StoredCentres
 from service.frames.keypoints import person_from_centres, person_from_keypoints
-from service.frames.measure import FrameComputation, measure_people
+from service.frames.measure import FrameComputation, measure_frames
 from service.frames.repository import frames_points, pending_frames, record_frame_outcomes
 from service.frames.schemas import PersonObservation
 from service.frames.static import StaticMarks, mark_keypoint_frames, record_static_marks, spots_seen
@@ -114,8 +115,22 @@ def compute_frame_result(
 ) -> FrameComputation:
     """A frame's result with a stored calibration version (see `measure_people`); `camera` is the version as the
     geometry's Calibration when the caller already has it (a measuring job builds it once per chunk, not per frame)."""
-    return measure_people(
-        people,
+    return compute_frame_results(
+        [people], calibration, image_size_px=image_size_px, distance_threshold_m=distance_threshold_m, camera=camera
+    )[0]
+
+
+def compute_frame_results(
+    frames: Sequence[Sequence[StoredCentres | PersonIn]],
+    calibration: CalibrationVersion,
+    *,
+    image_size_px: tuple[int, int],
+    distance_threshold_m: float,
+    camera: Calibration | None = None,
+) -> list[FrameComputation]:
+    """Several frames' results (each frame's people), measured in one pass (service.frames.measure.measure_frames)."""
+    return measure_frames(
+        frames,
         camera if camera is not None else calibration_from_version(calibration, image_size_px),
         distance_threshold_m=distance_threshold_m,
         calibration_version=calibration.version,
@@ -132,12 +147,25 @@ def frame_outcome(
     geometry: Calibration | None = None,
 ) -> FrameOutcome:
     """A stored frame measured with `calibration` (`geometry`: the same as the geometry's Calibration, if built
-    already): done with its result, or failed with the reason (no I/O).
+    already): done with its result, or failed with the reason (no I/O)."""
+    return frame_outcomes([frame], [people], camera, calibration, geometry)[0]
 
-    Bad stored data for one frame (a person the geometry refuses) fails that frame, not the worker's batch.
+
+def frame_outcomes(
+    frames: Sequence[Frame],
+    people: Sequence[Sequence[StoredCentres]],
+    camera: Camera,
+    calibration: CalibrationVersion,
+    geometry: Calibration | None = None,
+) -> list[FrameOutcome]:
+    """Stored frames (`people`: each frame's) measured together with `calibration`, in one geometric pass: each
+    done with its result, or failed with the reason (no I/O).
+
+    Bad stored data for one frame (a person the geometry refuses) fails that frame, not the worker's batch: when
+    the pass over the chunk raises, the frames are measured one by one, so the error lands on its own frame.
     """
     try:
-        computation = compute_frame_result(
+        computations = compute_frame_results(
             people,
             calibration,
             image_size_px=(camera.image_width_px, camera.image_height_px),
@@ -145,18 +173,30 @@ def frame_outcome(
             camera=geometry,
         )
     except (ValueError, ArithmeticError) as exc:
-        return FrameOutcome(
-            frame.id, frame.camera_id, frame.timestamp, "failed", calibration.version, error=clip_reason(str(exc))
+        if len(frames) > 1:
+            return [
+                outcome
+                for one, its_people in zip(frames, people, strict=True)
+                for outcome in frame_outcomes([one], [its_people], camera, calibration, geometry)
+            ]
+        return [
+            FrameOutcome(
+                frame.id, frame.camera_id, frame.timestamp, "failed", calibration.version, error=clip_reason(str(exc))
+            )
+            for frame in frames
+        ]
+    return [
+        FrameOutcome(
+            frame.id,
+            frame.camera_id,
+            frame.timestamp,
+            "done",
+            calibration.version,
+            result=EncodedJSON(computation.result_json()),
+            violations=computation.violations,
         )
-    return FrameOutcome(
-        frame.id,
-        frame.camera_id,
-        frame.timestamp,
-        "done",
-        calibration.version,
-        result=EncodedJSON(computation.result_json()),
-        violations=computation.violations,
-    )
+        for frame, computation in zip(frames, computations, strict=True)
+    ]
 
 
 def measure_pending(settings: Settings, dispatcher: RedisDispatcher, camera_id: str) -> str:
@@ -193,10 +233,8 @@ def measure_pending(settings: Settings, dispatcher: RedisDispatcher, camera_id: 
         measured = [frame for frame in frames if moved_at is None or frame.timestamp < moved_at]
         marks = StaticMarks() if spots is None else mark_keypoint_frames(spots, measured, people)
         geometry = _geometry(calibration, camera) if measured else None
-        outcomes = [
-            frame_outcome(frame, marks.people(frame.id, people.get(frame.id, [])), camera, calibration, geometry)
-            for frame in measured
-        ]
+        chunk_people = [marks.people(frame.id, people.get(frame.id, [])) for frame in measured]
+        outcomes = frame_outcomes(measured, chunk_people, camera, calibration, geometry)
         if watched is not None:
             client_ids = {frame.id: frame.client_frame_id for frame in measured}
             keep_watch = partial(moves.keep_watch, camera=camera, calibration=calibration, watched=watched)

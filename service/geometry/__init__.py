@@ -7,6 +7,7 @@ y down, z forward; ground plane normal . X + rho = 0 with the normal pointing up
 
     cal = calibrate(tops_px, bottoms_px, CalibrationProblem((W, H), height_m=1.32))
     m = measure(cal, tops_px, bottoms_px)   # positions, distances and their 1-sigma
+    ms = measure_many(cal, tops_px, bottoms_px, people_per_frame)   # many frames in one pass
 
 Layout (PoseLib-style): camera (the camera model: principal point, focal lengths,
 lens, rays, projection), minimal (minimal solvers), linear (the batch solver),
@@ -20,7 +21,7 @@ from .calibrate import calibrate
 from .calibration import Calibration, Quality, Uncertainty
 from .camera import OpenCVLens
 from .errors import CalibrationError
-from .measure import Measurement, measure
+from .measure import Measurement, Measurements, measure, measure_many
 from .priors import DEFAULT_HEIGHT_M, DEFAULT_HEIGHT_STD_M
 from .problem import CalibrationProblem, SolveOptions
 from .quality import assess
@@ -32,6 +33,7 @@ __all__ = [
     "CalibrationError",
     "CalibrationProblem",
     "Measurement",
+    "Measurements",
     "OpenCVLens",
     "Quality",
     "SolveOptions",
@@ -39,4 +41,5 @@ __all__ = [
     "assess",
     "calibrate",
     "measure",
+    "measure_many",
 ]
