@@ -64,9 +64,3 @@ def place_people(
         heights[hidden] = height_m
     x_t = x_b + heights[:, None] * normal
     return x_b, x_t, heights
-
-
-def pairwise_distances(points: FloatArray) -> FloatArray:
-    """(N, N) Euclidean distances in metres (NaN involving unplaced people)."""
-    diff = points[:, None, :] - points[None, :, :]
-    return np.sqrt(dot(diff, diff))

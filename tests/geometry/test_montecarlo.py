@@ -6,8 +6,7 @@ import numpy as np
 
 from bench.simulate import SceneConfig, draw_scene
 from service.geometry import CalibrationError, SolveOptions
-from service.geometry.reconstruct import pairwise_distances
-from tests.support.geometry import angle_deg, solve
+from tests.support.geometry import angle_deg, pairwise_distances, solve
 
 
 def test_paper_protocol_noise_and_height_spread() -> None:

@@ -8,8 +8,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from service.geometry import CalibrationError, CalibrationProblem, SolveOptions, calibrate
-from service.geometry.reconstruct import pairwise_distances
-from tests.support.geometry import angle_deg, scene, solve
+from tests.support.geometry import angle_deg, pairwise_distances, scene, solve
 
 scenes = st.builds(
     lambda seed, n, noise, square: (

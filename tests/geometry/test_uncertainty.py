@@ -7,8 +7,7 @@ import pytest
 
 from service.geometry import SolveOptions
 from service.geometry.measure import measure
-from service.geometry.reconstruct import pairwise_distances
-from tests.support.geometry import ideal, scene, solve
+from tests.support.geometry import ideal, pairwise_distances, scene, solve
 
 
 def _distance_errors(cal, s) -> np.ndarray:  # type: ignore[no-untyped-def]

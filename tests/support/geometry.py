@@ -51,3 +51,9 @@ def sightings(
         return times, bottoms - np.column_stack((np.zeros(n), rng.uniform(120, 140, n))), bottoms
     bottoms = rng.uniform((100, 300), (1800, 1000), size=(n, 2))
     return times, bottoms - np.column_stack((rng.normal(0, 5, n), rng.uniform(60, 200, n))), bottoms
+
+
+def pairwise_distances(points: np.ndarray) -> np.ndarray:
+    """(N, N) Euclidean distances in metres (NaN involving unplaced people): the tests' reference."""
+    diff = points[:, None, :] - points[None, :, :]
+    return np.sqrt(np.sum(diff * diff, -1))
