@@ -33,6 +33,7 @@ from typing import Any
 import redis
 from rq import Queue
 from rq.job import Job
+from rq.timeouts import JobTimeoutException
 from rq.utils import now as rq_now
 from rq.utils import utcparse
 from sqlalchemy.exc import SQLAlchemyError
@@ -284,7 +285,43 @@ class _SharesTime:
         self._ordered_queues = sorted(self._ordered_queues, key=behind)  # stable: ties keep their order
 
 
-class RecoveringSimpleWorker(_SharesTime, _Recovers, ProvesLiveness, InstrumentedSimpleWorker):
+# Exit status of a worker that left after a job overran its timeout (EX_TEMPFAIL: `serve` and Compose start another).
+OVERRUN_EXIT_STATUS = 75
+
+
+class _LeavesAfterAnOverrun:
+    """Ends the worker process once a job that overran its timeout has been failed (and retried, if it may be).
+
+    A job run in the worker's own process is stopped at its timeout by an exception in the worker's thread; the
+    threads it left working go on. A pose job's crop threads once deadlocked inside OpenVINO for good (see
+    service.pose.sessions): the job timed out after POSE_JOB_TIMEOUT_S, and every later pose job waited on the
+    same dead threads until it timed out too, while the worker went on looking healthy. Nothing can stop a thread,
+    so the process goes (at once: an interpreter exit would wait for the stuck threads) and its supervisor starts a
+    fresh one; the overrun job's retry runs there. A forking worker needs none of this (the overrun job's child is
+    killed).
+    """
+
+    _overran: Job | None = None
+
+    def handle_exception(self, job: Job, *exc_info: Any) -> None:
+        super().handle_exception(job, *exc_info)  # type: ignore[misc]
+        if exc_info and isinstance(exc_info[0], type) and issubclass(exc_info[0], JobTimeoutException):
+            self._overran = job
+
+    def execute_job(self, job: Job, queue: Queue) -> None:
+        super().execute_job(job, queue)  # type: ignore[misc]
+        if self._overran is not None:
+            log.error(
+                "job %s (%s) overran its %s s timeout; leaving, so that what it left running cannot block later jobs",
+                job.id,
+                job.description,
+                job.timeout,
+            )
+            logging.shutdown()
+            os._exit(OVERRUN_EXIT_STATUS)
+
+
+class RecoveringSimpleWorker(_LeavesAfterAnOverrun, _SharesTime, _Recovers, ProvesLiveness, InstrumentedSimpleWorker):
     """Jobs in the worker process, measured (workers.instrumented) and kept alive (workers.liveness)."""
 
 

@@ -12,20 +12,25 @@ import re
 import signal
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 
 import psutil
 import redis
+from rq import Queue, Retry
+from rq.job import Job, JobStatus
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session, sessionmaker
 
 from service.cli.processes import QUEUE_NAMES
-from service.queue import QUEUES, RedisDispatcher
+from service.queue import FRAMES_QUEUE, QUEUES, RedisDispatcher
 from service.runtime import default_process_split
 from service.store import Frame
 from tests.support.jobs import IMAGE_SIZE, frame_timestamp, simulated_camera, store_frames
 from tests.support.serving import REPO, clean_environment, serve, stop, wait_for
 from tests.support.shared import TOWN_CENTRE, model_dir_path, require_dir
+from workers.main import OVERRUN_EXIT_STATUS
 
 TOKEN = re.compile(r"pm_[0-9a-f]{12}_[0-9A-Za-z]{43}")
 
@@ -57,6 +62,34 @@ def test_worker_subprocess_answers_stored_and_dispatched_frames(
         returncode = stop(worker)
     assert returncode == 0  # SIGTERM is a warm shutdown, not a crash
     assert redis_dispatcher.calibration_state(camera.camera_id) == "idle"
+
+
+def overrunning_job() -> None:
+    """A job that never comes back: it waits on a thread that works for ten minutes (what a library deadlocked in
+    a worker's thread leaves behind)."""
+    stuck = threading.Thread(target=time.sleep, args=(600,))
+    stuck.start()
+    stuck.join()
+
+
+def test_a_worker_leaves_after_a_job_overruns_its_timeout_and_the_job_is_retried(
+    sessions: sessionmaker[Session], connection: redis.Redis
+) -> None:
+    """The stuck thread would block every later job that needs it and an ordinary exit: the worker exits at once
+    with its overrun status, and the job waits, queued again, for the fresh worker its supervisor starts."""
+    worker = subprocess.Popen(
+        [sys.executable, "-m", "service.cli", "worker", "--queue", FRAMES_QUEUE], cwd=REPO, env=dict(os.environ)
+    )
+    job = Queue(FRAMES_QUEUE, connection=connection).enqueue(overrunning_job, job_timeout=2, retry=Retry(max=1))
+    try:
+        returncode = worker.wait(timeout=60)
+    finally:
+        if worker.poll() is None:
+            worker.kill()
+            worker.wait()
+    assert returncode == OVERRUN_EXIT_STATUS
+    stored = Job.fetch(job.id, connection=connection)
+    assert stored.get_status() == JobStatus.QUEUED and stored.retries_left == 0
 
 
 def test_serve_runs_everything_and_shuts_down_cleanly(tmp_path: Path, sessions: sessionmaker[Session]) -> None:
