@@ -139,18 +139,6 @@ def compute_frame_results(
     )
 
 
-def frame_outcome(
-    frame: Frame,
-    people: Sequence[StoredCentres],
-    camera: Camera,
-    calibration: CalibrationVersion,
-    geometry: Calibration | None = None,
-) -> FrameOutcome:
-    """A stored frame measured with `calibration` (`geometry`: the same as the geometry's Calibration, if built
-    already): done with its result, or failed with the reason (no I/O)."""
-    return frame_outcomes([frame], [people], camera, calibration, geometry)[0]
-
-
 def frame_outcomes(
     frames: Sequence[Frame],
     people: Sequence[Sequence[StoredCentres]],

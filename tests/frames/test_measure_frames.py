@@ -28,7 +28,7 @@ from service.frames.measure import (
     measure_frames,
     measure_people,
 )
-from service.frames.service import frame_outcome, frame_outcomes
+from service.frames.service import frame_outcomes
 from service.geometry import DEFAULT_HEIGHT_STD_M, Uncertainty, measure
 from service.store.models import Camera, Frame
 from tests.render.scenes import calibration_of, tilted_scene, version_of
@@ -152,7 +152,7 @@ def test_a_frame_the_geometry_refuses_fails_alone() -> None:
     assert [o.status for o in outcomes] == ["done", "failed", "done"]
     assert "not a number" in (outcomes[1].error or "")
     for index in (0, 2):
-        alone = frame_outcome(frames[index], people[index], camera, calibration)
+        alone = frame_outcomes([frames[index]], [people[index]], camera, calibration)[0]
         assert outcomes[index] == alone and outcomes[index].result is not None
 
 
