@@ -304,10 +304,43 @@ def add_keypoint_frame(
     return frame, True
 
 
-def add_keypoint_frames(
-    session: Session, frames: Sequence[NewKeypointFrame], *, received_at: datetime | None = None
-) -> list[tuple[Frame, bool]]:
-    """Store several frames and their people with one statement per table; returns (frame, created) per frame.
+@dataclass(frozen=True)
+class PreparedKeypointFrame:
+    """A new keypoint frame's rows, built before its transaction (prepare_keypoint_frames).
+
+    On SQLite the storing transaction holds the database's one write lock from its first statement, and every other
+    writer (the other API processes, the workers) waits for it meanwhile: building the rows there held the lock about
+    twice as long as the statements need.
+    """
+
+    item: NewKeypointFrame
+    frame: Frame
+    """The frame as it will be inserted if it is new (its id is drawn here; a retry's prepared frame is dropped)."""
+    frame_row: dict[str, Any]
+    observation_rows: list[dict[str, Any]]
+    usable: int
+
+
+def prepare_keypoint_frame(item: NewKeypointFrame, *, received_at: datetime) -> PreparedKeypointFrame:
+    """The rows the frame would insert, with no session: raises ValueError for a frame the store cannot take."""
+    _check_timestamp(item.timestamp)
+    frame = _new_frame(
+        item.camera.id,
+        item.timestamp,
+        item.client_frame_id,
+        received_at,
+        people=len(item.people),
+        request_id=item.request_id,
+    )
+    rows = _observation_rows(item.camera, frame.id, item.people)
+    frame.content_sha256 = keypoint_frame_digest(item.timestamp, item.people, [row["keypoints_f32"] for row in rows])
+    usable = sum(1 for row in rows if row["usable"])
+    return PreparedKeypointFrame(item, frame, _frame_row(frame), rows, usable)
+
+
+def add_keypoint_frames(session: Session, frames: Sequence[PreparedKeypointFrame]) -> list[tuple[Frame, bool]]:
+    """Store several prepared frames and their people with one statement per table; returns (frame, created) per
+    frame.
 
     The API's group commit (service.frames.writer) writes the frames that arrive while the previous batch
     is being written in one transaction, which costs a fraction of one transaction per frame. Retries are
@@ -316,38 +349,27 @@ def add_keypoint_frames(
     FramesRefusedError naming them, before anything is written, so the caller stores the others (the evidence
     counters' update is that check: see _count_evidence_where_unchanged). There is no SAVEPOINT per frame: a frame
     whose client id another process stored since the check makes the whole batch raise IntegrityError, and the
-    caller stores those frames one at a time instead.
+    caller stores those frames one at a time instead. A prepared frame may be given again after its transaction
+    rolled back.
     """
-    received_at = received_at or utc_now()
-    for item in frames:
-        _check_timestamp(item.timestamp)
-    known = _frames_by_client_ids(session, frames)
+    known = _frames_by_client_ids(session, [prepared.item for prepared in frames])
     results: list[tuple[Frame, bool]] = []
     frame_rows: list[dict[str, Any]] = []
     observation_rows: list[dict[str, Any]] = []
     usable: dict[str, int] = {}
     checked: dict[int, Camera] = {}  # position of each new frame -> the camera it was checked against
-    for position, item in enumerate(frames):
+    for position, prepared in enumerate(frames):
+        item, frame = prepared.item, prepared.frame
         camera_id = item.camera.id
         key = (camera_id, item.client_frame_id)
-        if item.client_frame_id is not None and key in known:
-            results.append((known[key], False))
-            continue
-        frame = _new_frame(
-            camera_id,
-            item.timestamp,
-            item.client_frame_id,
-            received_at,
-            people=len(item.people),
-            request_id=item.request_id,
-        )
         if item.client_frame_id is not None:
+            if key in known:
+                results.append((known[key], False))
+                continue
             known[key] = frame
-        rows = _observation_rows(item.camera, frame.id, item.people)
-        frame.content_sha256 = keypoint_frame_digest(item.timestamp, item.people, [r["keypoints_f32"] for r in rows])
-        frame_rows.append(_frame_row(frame))
-        observation_rows += rows
-        usable[camera_id] = usable.get(camera_id, 0) + sum(1 for row in rows if row["usable"])
+        frame_rows.append(prepared.frame_row)
+        observation_rows += prepared.observation_rows
+        usable[camera_id] = usable.get(camera_id, 0) + prepared.usable
         checked[position] = item.camera
         results.append((frame, True))
     refused = _count_evidence_where_unchanged(session, checked, usable)

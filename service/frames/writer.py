@@ -35,9 +35,16 @@ from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 
 from service.cameras.repository import CameraNotFoundError, CameraResizedError
-from service.frames.ingest import FramesRefusedError, NewKeypointFrame, add_keypoint_frame, add_keypoint_frames
+from service.frames.ingest import (
+    FramesRefusedError,
+    NewKeypointFrame,
+    PreparedKeypointFrame,
+    add_keypoint_frame,
+    add_keypoint_frames,
+    prepare_keypoint_frame,
+)
 from service.store.db import is_database_unavailable
-from service.store.models import Frame
+from service.store.models import Frame, utc_now
 
 log = logging.getLogger(__name__)
 
@@ -178,11 +185,19 @@ class FrameWriter:
         Raises only what fails every frame alike (the database unavailable).
         """
         answers: list[tuple[Frame, bool] | Exception | None] = [None] * len(frames)
-        waiting = list(range(len(frames)))
+        # Rows are built before the transaction, which on SQLite holds the one write lock every writer waits for.
+        prepared: dict[int, PreparedKeypointFrame] = {}
+        received_at = utc_now()
+        for i, frame in enumerate(frames):
+            try:
+                prepared[i] = prepare_keypoint_frame(frame, received_at=received_at)
+            except ValueError:
+                answers[i] = self._store_alone(frame)  # answers it as a single post would
+        waiting = sorted(prepared)
         while waiting:
             try:
                 with self.session_factory() as session:
-                    stored = add_keypoint_frames(session, [frames[i] for i in waiting])
+                    stored = add_keypoint_frames(session, [prepared[i] for i in waiting])
                     session.commit()
             except FramesRefusedError as refused:
                 for position, error in refused.errors.items():

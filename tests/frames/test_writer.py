@@ -7,6 +7,7 @@ import uuid
 from collections import Counter
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
+from datetime import datetime
 
 import pytest
 from sqlalchemy import Engine, delete, select
@@ -15,11 +16,11 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from service.cameras.repository import CameraNotFoundError
 from service.frames import writer as frame_writer
-from service.frames.ingest import NewKeypointFrame, add_keypoint_frames
+from service.frames.ingest import NewKeypointFrame, PreparedKeypointFrame, add_keypoint_frames, prepare_keypoint_frame
 from service.frames.repository import frame_observations
-from service.frames.writer import FrameWriter
+from service.frames.writer import FrameNotStorableError, FrameWriter
 from service.store import make_session_factory
-from service.store.models import Camera, Frame, Observation
+from service.store.models import Camera, Frame, Observation, utc_now
 from tests.support.store import T0, add_camera, count, person_at
 
 pytestmark = pytest.mark.both_backends
@@ -41,10 +42,15 @@ def frame(cam: Camera, client_frame_id: str | None = None, people: int = 2) -> N
     return NewKeypointFrame(cam, T0, [person_at(100 + 50 * i, 400) for i in range(people)], client_frame_id)
 
 
+def store(session: Session, frames: Sequence[NewKeypointFrame]) -> list[tuple[Frame, bool]]:
+    received_at = utc_now()
+    return add_keypoint_frames(session, [prepare_keypoint_frame(item, received_at=received_at) for item in frames])
+
+
 def test_batch_stores_every_frame_and_counts_evidence(factory: sessionmaker[Session]) -> None:
     one, two = camera(factory, "cam-1"), camera(factory, "cam-2")
     with factory() as session:
-        stored = add_keypoint_frames(session, [frame(one), frame(two, people=3), frame(one, people=1)])
+        stored = store(session, [frame(one), frame(two, people=3), frame(one, people=1)])
         session.commit()
     assert [created for _, created in stored] == [True, True, True]
     assert [f.people for f, _ in stored] == [2, 3, 1]
@@ -61,10 +67,10 @@ def test_batch_stores_every_frame_and_counts_evidence(factory: sessionmaker[Sess
 def test_batch_answers_retries_from_the_store_and_from_within_the_batch(factory: sessionmaker[Session]) -> None:
     cam = camera(factory)
     with factory() as session:
-        ((first, _),) = add_keypoint_frames(session, [frame(cam, "a")])
+        ((first, _),) = store(session, [frame(cam, "a")])
         session.commit()
     with factory() as session:
-        stored = add_keypoint_frames(session, [frame(cam, "a"), frame(cam, "b"), frame(cam, "b")])
+        stored = store(session, [frame(cam, "a"), frame(cam, "b"), frame(cam, "b")])
         session.commit()
     assert [(f.id == first.id, created) for f, created in stored[:1]] == [(True, False)]
     assert stored[1][1] is True and stored[2] == (stored[1][0], False)
@@ -80,7 +86,7 @@ def test_concurrent_posts_are_batched_and_each_answered(
     writer = FrameWriter(factory)
     batches: list[int] = []
 
-    def counting(session: Session, frames: list[NewKeypointFrame]) -> list[tuple[Frame, bool]]:
+    def counting(session: Session, frames: list[PreparedKeypointFrame]) -> list[tuple[Frame, bool]]:
         batches.append(len(frames))
         return add_keypoint_frames(session, frames)
 
@@ -110,6 +116,34 @@ def test_a_deleted_camera_fails_only_its_own_frames(factory: sessionmaker[Sessio
     assert [answer[1] for answer in (answers[0], answers[2])] == [True, True]  # type: ignore[index]
     with factory() as session:
         assert {f.client_frame_id for f in session.scalars(select(Frame))} == {"k-1", "k-2"}
+
+
+def test_rows_are_built_before_the_transaction(
+    factory: sessionmaker[Session], engine: Engine, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """On SQLite a writing transaction holds the one write lock every other process waits for: a batch's rows are
+    built while the writer holds no connection, and only the statements run inside."""
+    cam = camera(factory)
+    connections_held: list[int] = []
+
+    def watched(item: NewKeypointFrame, *, received_at: datetime) -> PreparedKeypointFrame:
+        connections_held.append(engine.pool.checkedout())  # type: ignore[attr-defined]
+        return prepare_keypoint_frame(item, received_at=received_at)
+
+    monkeypatch.setattr(frame_writer, "prepare_keypoint_frame", watched)
+    answers = FrameWriter(factory).store_batch([frame(cam, "a"), frame(cam, "b", people=3)])
+    assert connections_held == [0, 0]
+    assert [answer[1] for answer in answers] == [True, True]  # type: ignore[index]
+
+
+def test_a_frame_the_store_cannot_take_fails_alone(factory: sessionmaker[Session]) -> None:
+    cam = camera(factory)
+    unplaceable = NewKeypointFrame(cam, T0, [person_at(float("nan"), 400)], "bad")
+    answers = FrameWriter(factory).store_batch([frame(cam, "a"), unplaceable, frame(cam, "b")])
+    assert isinstance(answers[1], FrameNotStorableError)
+    assert [answer[1] for answer in (answers[0], answers[2])] == [True, True]  # type: ignore[index]
+    with factory() as session:
+        assert {f.client_frame_id for f in session.scalars(select(Frame))} == {"a", "b"}
 
 
 def test_a_failed_batch_fails_every_frame_in_it_and_no_waiter_hangs(factory: sessionmaker[Session]) -> None:
@@ -152,10 +186,10 @@ def test_client_frame_ids_are_per_camera_within_one_batch(factory: sessionmaker[
     """One lookup answers retries of several cameras at once; the same client id on two cameras is two frames."""
     one, two, three = camera(factory, "cam-1"), camera(factory, "cam-2"), camera(factory, "cam-3")
     with factory() as session:
-        first = add_keypoint_frames(session, [frame(one, "a"), frame(two, "b")])
+        first = store(session, [frame(one, "a"), frame(two, "b")])
         session.commit()
     with factory() as session:
-        again = add_keypoint_frames(session, [frame(two, "b"), frame(one, "b"), frame(three, "a"), frame(one, "a")])
+        again = store(session, [frame(two, "b"), frame(one, "b"), frame(three, "a"), frame(one, "a")])
         session.commit()
     assert [created for _, created in again] == [False, True, True, False]
     assert again[0][0].id == first[1][0].id and again[3][0].id == first[0][0].id

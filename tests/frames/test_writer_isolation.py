@@ -20,7 +20,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from service.cameras.repository import CameraNotFoundError, CameraResizedError
 from service.domain import PersonIn
-from service.frames.ingest import FramesRefusedError, NewKeypointFrame, add_keypoint_frames
+from service.frames.ingest import FramesRefusedError, NewKeypointFrame, add_keypoint_frames, prepare_keypoint_frame
 from service.frames.writer import FrameNotStorableError, FrameWriter
 from service.store import make_session_factory
 from service.store.models import Camera, Frame, Observation
@@ -131,7 +131,7 @@ def test_frames_of_a_resized_or_deleted_camera_are_refused_before_anything_is_wr
     ]
     with factory() as session:
         try:
-            add_keypoint_frames(session, frames)
+            add_keypoint_frames(session, [prepare_keypoint_frame(item, received_at=T0) for item in frames])
         except FramesRefusedError as refused:
             errors = refused.errors
         else:
