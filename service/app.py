@@ -17,6 +17,7 @@ from sqlalchemy import Engine
 
 from service import __version__
 from service.calibration import routes as calibration
+from service.calibration.service import DueSolves
 from service.cameras import routes as cameras
 from service.cameras.cache import CameraCache
 from service.console import routes as console
@@ -115,8 +116,9 @@ def create_app(
     app.state.engine = engine
     app.state.session_factory = make_session_factory(engine)
     app.state.read_session_factory = make_session_factory(engine, read_only=True)
+    due_solves = DueSolves(settings, app.state.read_session_factory, dispatcher)
     app.state.frame_writer = FrameWriter(
-        app.state.session_factory, after_commit=functools.partial(frames.dispatch_stored, dispatcher)
+        app.state.session_factory, after_commit=functools.partial(frames.dispatch_stored, dispatcher, due_solves)
     )
     app.state.camera_cache = CameraCache(settings.camera_cache_ttl_s, app.state.read_session_factory)
     app.state.dispatcher = dispatcher

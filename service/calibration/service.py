@@ -13,12 +13,13 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Collection
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sqlalchemy import select
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, sessionmaker
 
 from service.calibration import evidence
 from service.calibration.camera_model import model_record, problem_for, quality_record
@@ -36,6 +37,7 @@ from service.store.sessions import read_session_factory, transaction
 from service.webhooks.events import announce, calibration_deliveries
 
 if TYPE_CHECKING:
+    from service.dispatch import Dispatcher
     from service.queue import RedisDispatcher
 
 log = logging.getLogger(JOBS_LOGGER)
@@ -141,14 +143,61 @@ def next_solve_at(session: Session, camera: Camera, settings: Settings) -> int:
 
 def may_be_due(camera: Camera, settings: Settings) -> bool:
     """False when no schedule could make the camera due yet (no read needed): what a measuring job asks first."""
-    last = camera.evidence_at_last_solve
+    return _may_be_due(camera.usable_evidence_count, camera.evidence_at_last_solve, settings)
+
+
+def _may_be_due(evidence: int, evidence_at_last_solve: int, settings: Settings) -> bool:
     factor = min(settings.calibration_growth_factor, settings.calibration_refresh_factor)
-    return last <= 0 or camera.usable_evidence_count >= max(settings.calibration_min_people, factor * last)
+    return evidence_at_last_solve <= 0 or evidence >= max(
+        settings.calibration_min_people, factor * evidence_at_last_solve
+    )
 
 
 def solve_due(session: Session, camera: Camera, settings: Settings) -> bool:
     """Whether the camera is due a solve now (next_solve_at reached)."""
     return camera.usable_evidence_count >= next_solve_at(session, camera, settings)
+
+
+class DueSolves:
+    """Asks for a camera's solve as soon as the evidence that makes it due is stored (the API's after-commit step).
+
+    Otherwise the ask came from the camera's next measuring job, and under load the measuring queue runs seconds to
+    tens of seconds behind the posts (`posemetry bench load`: a camera's measuring job ran every ~20 s), all of it
+    added to the wait of a solve that was due. Each write batch's cameras cost one light read; the full check
+    (`solve_due`, which may read the last two versions) only for cameras whose counters say they may be due, and
+    once a solve has been asked for, the camera is not asked for again until a solve has moved its
+    `evidence_at_last_solve`. A lost ask costs nothing: the measuring job and the workers' recovery pass ask too.
+    Called from one thread (the frame writer's after-commit thread).
+    """
+
+    def __init__(self, settings: Settings, read_sessions: sessionmaker[Session], dispatcher: Dispatcher) -> None:
+        self.settings, self.read_sessions, self.dispatcher = settings, read_sessions, dispatcher
+        self._asked: dict[str, int] = {}  # camera -> its evidence_at_last_solve when its solve was asked for
+
+    def __call__(self, camera_ids: Collection[str]) -> list[str]:
+        """Ask for the solves these cameras are due; returns the cameras asked for."""
+        if not camera_ids:
+            return []
+        with self.read_sessions() as session:
+            counters = session.execute(
+                select(Camera.id, Camera.usable_evidence_count, Camera.evidence_at_last_solve).where(
+                    Camera.id.in_(sorted(camera_ids))
+                )
+            ).all()
+            maybe = [
+                row.id
+                for row in counters
+                if _may_be_due(row.usable_evidence_count, row.evidence_at_last_solve, self.settings)
+                and self._asked.get(row.id) != row.evidence_at_last_solve
+            ]
+            if not maybe:
+                return []
+            cameras = session.scalars(select(Camera).where(Camera.id.in_(maybe))).all()
+            due = [camera for camera in cameras if solve_due(session, camera, self.settings)]
+        for camera in due:
+            self.dispatcher.calibration_requested(camera.id, False)
+            self._asked[camera.id] = camera.evidence_at_last_solve
+        return [camera.id for camera in due]
 
 
 def people_needed(session: Session, camera: Camera, settings: Settings) -> int:

@@ -3,16 +3,19 @@
 from __future__ import annotations
 
 import asyncio
+import logging
 import re
 import uuid
 from collections.abc import Sequence
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Path, Query, Request, Response, status
+from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import State
 
+from service.calibration.service import DueSolves
 from service.cameras.repository import CameraNotFoundError, CameraResizedError
 from service.cameras.service import camera_not_found, require_camera
 from service.dispatch import UNAVAILABLE_ERRORS, Dispatcher
@@ -40,6 +43,8 @@ from service.observability.metrics import FRAMES_INGESTED
 from service.observability.request_id import current_request_id
 from service.settings import Settings
 from service.store.models import Camera, Frame, Observation
+
+log = logging.getLogger(__name__)
 
 router = APIRouter(prefix="/v1/cameras", tags=["frames"])
 # Bodies read by json_body rather than declared in a signature; the app adds their schemas to its OpenAPI.
@@ -141,10 +146,13 @@ async def post_keypoints(
     return _accepted(frame, stored.created, url, response)
 
 
-def dispatch_stored(dispatcher: Dispatcher, stored: Sequence[tuple[Frame, bool]]) -> list[BaseException | None]:
+def dispatch_stored(
+    dispatcher: Dispatcher, due_solves: DueSolves | None, stored: Sequence[tuple[Frame, bool]]
+) -> list[BaseException | None]:
     """The frame writer's after-commit step: have the batch's new (or still pending) frames measured, with one
-    call to the queue for the whole batch (one frame named per camera). If the queue is unreachable, each of
-    those frames' posts is answered 503 (the frames are stored; the workers find them on start)."""
+    call to the queue for the whole batch (one frame named per camera), and ask for the solves the new evidence
+    made due. If the queue is unreachable, each of those frames' posts is answered 503 (the frames are stored; the
+    workers find them on start); a solve that could not be asked for is asked for again by the next batch."""
     waiting = [created or frame.status == "pending" for frame, created in stored]
     first_per_camera: dict[str, uuid.UUID] = {}
     for (frame, _), wanted in zip(stored, waiting, strict=True):
@@ -156,6 +164,12 @@ def dispatch_stored(dispatcher: Dispatcher, stored: Sequence[tuple[Frame, bool]]
             dispatcher.frames_stored(list(first_per_camera.items()))
         except UNAVAILABLE_ERRORS as exc:
             failure = exc
+    new_evidence = {frame.camera_id for frame, created in stored if created}
+    if due_solves is not None and new_evidence and failure is None:
+        try:
+            due_solves(new_evidence)
+        except (*UNAVAILABLE_ERRORS, SQLAlchemyError) as exc:
+            log.warning("could not ask for the solves of %d cameras: %s", len(new_evidence), exc)
     return [failure if wanted else None for wanted in waiting]
 
 

@@ -87,23 +87,53 @@ def test_a_write_batch_makes_one_queue_call_naming_each_camera_once() -> None:
 
     batch = [stored("a"), stored("b"), stored("a"), stored("c", "done", created=False), stored("b")]
     dispatcher = RecordingDispatcher()
-    assert dispatch_stored(dispatcher, batch) == [None] * 5
+    assert dispatch_stored(dispatcher, None, batch) == [None] * 5
     # The answered retry ("c") is not asked for; each camera is named by its first frame of the batch.
     assert dispatcher.frames == [("a", batch[0][0].id), ("b", batch[1][0].id)]
 
     down = RecordingDispatcher(fail=True)
-    errors = dispatch_stored(down, batch)
+    errors = dispatch_stored(down, None, batch)
     assert isinstance(errors[0], DispatchUnavailableError)
     assert [error is errors[0] for error in errors] == [True, True, True, False, True]
     assert errors[3] is None  # a retry of a frame already measured needs no queue: its post is answered as usual
-    assert dispatch_stored(down, [stored("c", "done", created=False)]) == [None]  # and makes no call at all
+    assert dispatch_stored(down, None, [stored("c", "done", created=False)]) == [None]  # and makes no call at all
 
 
 def test_a_frame_makes_one_queue_call(client: TestClient, camera: str, dispatcher: RecordingDispatcher) -> None:
-    """The hot path only nudges measuring; the measuring worker asks for calibration when it is due."""
-    accepted = client.post(f"/v1/cameras/{camera}/keypoints", json=frame_body(standing(MIN_PEOPLE))).json()
+    """The hot path nudges measuring, and asks for a solve only when the frame's people make one due."""
+    accepted = client.post(f"/v1/cameras/{camera}/keypoints", json=frame_body(standing(MIN_PEOPLE - 1))).json()
     assert dispatcher.frames == [(camera, uuid.UUID(accepted["frame_id"]))]
     assert dispatcher.calibrations == []
+
+
+def test_the_frame_that_makes_a_solve_due_asks_for_it_once(
+    client: TestClient, camera: str, app: FastAPI, dispatcher: RecordingDispatcher
+) -> None:
+    """Not the measuring job, which runs behind the posts under load: the API asks when the evidence is stored, and
+    once per solve (the frames posted while it waits do not ask again)."""
+    post = lambda n: client.post(f"/v1/cameras/{camera}/keypoints", json=frame_body(standing(n)))  # noqa: E731
+    assert post(MIN_PEOPLE - 1).status_code == 202 and dispatcher.calibrations == []
+    assert post(1).status_code == 202 and dispatcher.calibrations == [(camera, False)]
+    assert post(3).status_code == 202 and dispatcher.calibrations == [(camera, False)]
+    values = CalibrationValues(
+        status="failed", reason="too thin", person_height_m=1.32, people_used=8, inliers=0, evidence_count=8
+    )
+    with app.state.session_factory() as session:
+        add_calibration(session, camera, values, make_current=False)  # the solve ran on 8 people (failed ones count)
+        session.commit()
+    assert post(7).status_code == 202 and dispatcher.calibrations == [(camera, False)]  # 15 < 2 x 8
+    assert post(1).status_code == 202 and dispatcher.calibrations == [(camera, False)] * 2  # 16: due again
+
+
+def test_a_solve_the_queue_cannot_take_costs_the_frame_nothing(
+    client: TestClient, camera: str, dispatcher: RecordingDispatcher
+) -> None:
+    def unavailable(camera_id: str, forced: bool) -> None:
+        raise DispatchUnavailableError("queue unreachable")
+
+    dispatcher.calibration_requested = unavailable  # type: ignore[method-assign]
+    response = client.post(f"/v1/cameras/{camera}/keypoints", json=frame_body(standing(MIN_PEOPLE)))
+    assert response.status_code == 202 and len(dispatcher.frames) == 1
 
 
 @pytest.mark.parametrize("backend", ["sqlite", "postgresql"])
