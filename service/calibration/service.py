@@ -18,7 +18,7 @@ from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from sqlalchemy import select
+from sqlalchemy import bindparam, select
 from sqlalchemy.orm import Session, sessionmaker
 
 from service.calibration import evidence
@@ -163,41 +163,47 @@ class DueSolves:
 
     Otherwise the ask came from the camera's next measuring job, and under load the measuring queue runs seconds to
     tens of seconds behind the posts (`posemetry bench load`: a camera's measuring job ran every ~20 s), all of it
-    added to the wait of a solve that was due. Each write batch's cameras cost one light read; the full check
-    (`solve_due`, which may read the last two versions) only for cameras whose counters say they may be due, and
-    once a solve has been asked for, the camera is not asked for again until a solve has moved its
-    `evidence_at_last_solve`. A lost ask costs nothing: the measuring job and the workers' recovery pass ask too.
-    Called from one thread (the frame writer's after-commit thread).
+    added to the wait of a solve that was due. Each write batch's cameras cost one light read of their counters;
+    the evidence at which each camera's next solve is due (`next_solve_at`, which may read the last two versions)
+    is kept until a solve, a reset or a move changes the camera's `evidence_at_last_solve` or epoch, and a camera
+    is asked for once per such state. A lost ask, or a forced solve that changed the schedule without moving the
+    counter, costs only time: the measuring job and the workers' recovery pass ask too. Called from one thread
+    (the frame writer's after-commit thread).
     """
+
+    _COUNTERS = select(Camera.id, Camera.epoch, Camera.usable_evidence_count, Camera.evidence_at_last_solve).where(
+        Camera.id.in_(bindparam("ids", expanding=True))
+    )
 
     def __init__(self, settings: Settings, read_sessions: sessionmaker[Session], dispatcher: Dispatcher) -> None:
         self.settings, self.read_sessions, self.dispatcher = settings, read_sessions, dispatcher
-        self._asked: dict[str, int] = {}  # camera -> its evidence_at_last_solve when its solve was asked for
+        # camera -> ((epoch, evidence_at_last_solve), the evidence its next solve is due at, asked for already)
+        self._schedule: dict[str, tuple[tuple[int, int], int, bool]] = {}
 
     def __call__(self, camera_ids: Collection[str]) -> list[str]:
         """Ask for the solves these cameras are due; returns the cameras asked for."""
         if not camera_ids:
             return []
+        due = []
         with self.read_sessions() as session:
-            counters = session.execute(
-                select(Camera.id, Camera.usable_evidence_count, Camera.evidence_at_last_solve).where(
-                    Camera.id.in_(sorted(camera_ids))
-                )
-            ).all()
-            maybe = [
-                row.id
-                for row in counters
-                if _may_be_due(row.usable_evidence_count, row.evidence_at_last_solve, self.settings)
-                and self._asked.get(row.id) != row.evidence_at_last_solve
-            ]
-            if not maybe:
-                return []
-            cameras = session.scalars(select(Camera).where(Camera.id.in_(maybe))).all()
-            due = [camera for camera in cameras if solve_due(session, camera, self.settings)]
-        for camera in due:
-            self.dispatcher.calibration_requested(camera.id, False)
-            self._asked[camera.id] = camera.evidence_at_last_solve
-        return [camera.id for camera in due]
+            for row in session.execute(self._COUNTERS, {"ids": sorted(camera_ids)}).all():
+                if not _may_be_due(row.usable_evidence_count, row.evidence_at_last_solve, self.settings):
+                    continue
+                state = (row.epoch, row.evidence_at_last_solve)
+                known = self._schedule.get(row.id)
+                if known is None or known[0] != state:
+                    camera = session.get(Camera, row.id)
+                    if camera is None:
+                        continue
+                    known = (state, next_solve_at(session, camera, self.settings), False)
+                    self._schedule[row.id] = known
+                if not known[2] and row.usable_evidence_count >= known[1]:
+                    due.append(row.id)
+        for camera_id in due:
+            self.dispatcher.calibration_requested(camera_id, False)
+            state, target, _ = self._schedule[camera_id]
+            self._schedule[camera_id] = (state, target, True)
+        return due
 
 
 def people_needed(session: Session, camera: Camera, settings: Settings) -> int:
