@@ -58,7 +58,7 @@ from scipy.optimize import minimize_scalar
 from .camera import lifted, undistort
 from .errors import CalibrationError
 from .linear import RANK_TOL
-from .vec import FloatArray, homogeneous
+from .vec import FloatArray, cross, homogeneous
 
 # |k| r_max^2 stays below this: at -1 the model maps the outermost points to
 # infinity, at +1 it stops being monotone in the radius (two radii, one image).
@@ -147,7 +147,7 @@ def sampson_cost(tops_n: FloatArray, bottoms_n: FloatArray, k: float | FloatArra
     """
     kk = np.asarray(k, dtype=np.float64)
     t, b = lifted(tops_n, kk), lifted(bottoms_n, kk)
-    lines = np.cross(t, b)
+    lines = cross(t, b)
     weights = 1.0 / np.maximum(np.sum(lines * lines, -1), 1e-300)
     v = _weighted_null_vector(lines, weights)
     d = _sampson(tops_n, bottoms_n, t, b, v, kk)
@@ -166,15 +166,21 @@ def _weighted_null_vector(lines: FloatArray, weights: FloatArray) -> FloatArray:
 def _sampson(
     tops_n: FloatArray, bottoms_n: FloatArray, t: FloatArray, b: FloatArray, v: FloatArray, k: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
-    """(e, |grad e|^2) per person: algebraic residual and its squared gradient wrt the distorted endpoints."""
-    vv = v[..., None, :]
-    e = np.sum(np.cross(t, b) * vv, -1)
-    bv = np.cross(b, vv)
-    vt = np.cross(vv, t)
-    kk = 2.0 * k[..., None, None]
-    g_t = bv[..., :2] + kk * tops_n * bv[..., 2:]
-    g_b = vt[..., :2] + kk * bottoms_n * vt[..., 2:]
-    return e, np.sum(g_t * g_t, -1) + np.sum(g_b * g_b, -1)
+    """(e, |grad e|^2) per person: algebraic residual and its squared gradient wrt the distorted endpoints.
+
+    Written per component (e = (t x b).v, grad from b x v and v x t): the lens test evaluates it on every k of its
+    grid for every person, and np.cross's temporaries were a tenth of a solve. Bit-identical to the vector form."""
+    t0, t1, tw = t[..., 0], t[..., 1], t[..., 2]
+    b0, b1, bw = b[..., 0], b[..., 1], b[..., 2]
+    v0, v1, v2 = v[..., 0, None], v[..., 1, None], v[..., 2, None]
+    e = (t1 * bw - tw * b1) * v0 + (tw * b0 - t0 * bw) * v1 + (t0 * b1 - t1 * b0) * v2
+    bv2, vt2 = b0 * v1 - b1 * v0, v0 * t1 - v1 * t0
+    kk = 2.0 * k[..., None]
+    g_t0 = (b1 * v2 - bw * v1) + kk * tops_n[..., 0] * bv2
+    g_t1 = (bw * v0 - b0 * v2) + kk * tops_n[..., 1] * bv2
+    g_b0 = (v1 * tw - v2 * t1) + kk * bottoms_n[..., 0] * vt2
+    g_b1 = (v2 * t0 - v0 * tw) + kk * bottoms_n[..., 1] * vt2
+    return e, (g_t0 * g_t0 + g_t1 * g_t1) + (g_b0 * g_b0 + g_b1 * g_b1)
 
 
 @dataclass(frozen=True)

@@ -51,9 +51,14 @@ def sampson_distances(tops_h: FloatArray, bottoms_h: FloatArray, v: FloatArray) 
     noise alone. v broadcasts against the points: (3,) or (M, 1, 3).
     """
     e = dot(segment_lines(tops_h, bottoms_h), v)
-    g_top = cross(bottoms_h, v)
-    g_bottom = cross(v, tops_h)
-    denom = np.sqrt(g_top[..., 0] ** 2 + g_top[..., 1] ** 2 + g_bottom[..., 0] ** 2 + g_bottom[..., 1] ** 2)
+    # The first two components of b x v and v x t (the gradient wrt the endpoints' pixels), written out: the
+    # consensus scores every hypothesis against every person with this.
+    t0, t1, t2 = tops_h[..., 0], tops_h[..., 1], tops_h[..., 2]
+    b0, b1, b2 = bottoms_h[..., 0], bottoms_h[..., 1], bottoms_h[..., 2]
+    v0, v1, v2 = v[..., 0], v[..., 1], v[..., 2]
+    g_top_0, g_top_1 = b1 * v2 - b2 * v1, b2 * v0 - b0 * v2
+    g_bottom_0, g_bottom_1 = v1 * t2 - v2 * t1, v2 * t0 - v0 * t2
+    denom = np.sqrt(g_top_0**2 + g_top_1**2 + g_bottom_0**2 + g_bottom_1**2)
     return e / np.maximum(denom, 1e-300)
 
 
