@@ -45,11 +45,12 @@ class CalibrationWatch:
             Poll(wall_s, int(status["evidence_count"]), int(status["people_needed"]))
         )
 
-    def due_times(self, camera_id: str) -> list[float]:
-        """When the camera fell due, one time per episode (wall clock, interpolated between polls). A camera already
-        due at its first poll counts as due then: a lower bound on its wait."""
+    def due_times(self, camera_id: str) -> list[tuple[float, float]]:
+        """When the camera fell due, one (not due yet, due) pair of wall times per episode: the last poll that saw it
+        not due, and the moment interpolated between that poll and the next. A camera already due at its first poll
+        counts as due then (both times): a lower bound on its wait."""
         polls = self.polls.get(camera_id, [])
-        times = [polls[0].wall_s] if polls and polls[0].needed <= 0 else []
+        times = [(polls[0].wall_s, polls[0].wall_s)] if polls and polls[0].needed <= 0 else []
         for before, after in itertools.pairwise(polls):
             if before.needed <= 0:
                 continue  # already due: the episode began earlier
@@ -58,24 +59,30 @@ class CalibrationWatch:
                 continue
             grown = after.evidence - before.evidence
             fraction = (target - before.evidence) / grown if grown > 0 else 1.0
-            times.append(before.wall_s + min(max(fraction, 0.0), 1.0) * (after.wall_s - before.wall_s))
+            times.append((before.wall_s, before.wall_s + min(max(fraction, 0.0), 1.0) * (after.wall_s - before.wall_s)))
         return times
 
     def freshness(self, solved_at: dict[str, list[float]], window: tuple[float, float], end_s: float) -> Freshness:
         """`solved_at`: each camera's solve times (wall). An episode counts when it overlaps the window: due before
         its end and not solved before its start (a camera still waiting when the window opens counts, with the
-        whole of its wait). `end_s`: when the histories were read (an episode still open then waited until it)."""
+        whole of its wait). `end_s`: when the histories were read (an episode still open then waited until it).
+
+        An episode's solve is the first stored after the last poll that saw the camera not due: the service asks
+        for the solve the moment the evidence is stored, so a solve can land between two polls before the
+        interpolated due time (evidence arrives in bursts, not evenly), and pairing it with the next solve would
+        count the episode as unsolved. An unforced solve runs only once its camera is due, so the evidence crossed
+        the target between that poll and the solve: the episode counts the whole of that span (an upper bound)."""
         result = Freshness()
         start, stop = window
         for camera_id, solves in solved_at.items():
             result.solves_in_window += sum(start <= t < stop for t in solves)
-            for due in self.due_times(camera_id):
-                after = [t for t in solves if t >= due]
+            for not_due, due in self.due_times(camera_id):
+                after = [t for t in solves if t >= not_due]
                 solved = min(after) if after else None
                 if due >= stop or (solved is not None and solved < start):
                     continue
                 if solved is not None:
-                    result.solved_s.append(solved - due)
+                    result.solved_s.append(solved - due if solved >= due else solved - not_due)
                 else:
                     result.unsolved_waited_s.append(end_s - due)
         return result

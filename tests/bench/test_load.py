@@ -111,9 +111,13 @@ def test_calibration_watch_dates_each_due_episode_between_polls_and_pairs_it_wit
         body = json.dumps({"evidence_count": evidence, "people_needed": needed}).encode()
         watch.record("cam", wall_s, body)
     watch.record("late", 90.0, json.dumps({"evidence_count": 50, "people_needed": 0}).encode())  # due before
-    assert watch.due_times("cam") == [101.0, 106.0]
+    assert watch.due_times("cam") == [(100.0, 101.0), (104.0, 106.0)]
     fresh = watch.freshness({"cam": [103.5], "late": [100.5]}, window=(100.0, 110.0), end_s=120.0)
     assert fresh.solved_s == [2.5, 10.5] and fresh.unsolved_waited_s == [14.0] and fresh.solves_in_window == 2
+    # A solve between the last poll that saw the camera not due and the interpolated due time is that episode's
+    # (evidence came in a burst just after the poll), counted from that poll; the episode is not left unsolved.
+    early = watch.freshness({"cam": [100.6, 104.5], "late": []}, window=(100.0, 110.0), end_s=120.0)
+    assert early.solved_s == pytest.approx([0.6, 0.5]) and early.unsolved_waited_s == [30.0]
 
 
 def test_metrics_deltas_by_label() -> None:
