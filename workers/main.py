@@ -200,10 +200,10 @@ class _Recovers:
 # gets more than its usual demand (0.6 images/s x 0.4 s under `posemetry bench load` is a quarter of the worker),
 # which keeps it first in line whenever an image arrives; its demand is bounded by the images posted, and a flood of
 # images still leaves the others 2/3. Solves get as much too: their demand is bounded as well (a camera is due once
-# per doubling of its evidence, then once per four-fold growth), and they have a deadline, which measuring has not.
-# With half the others' share, fifty cameras falling due together (`posemetry bench load`) waited 9-10 s (p50) and
-# up to 13 s; with an equal one 6.5-7 s and under 9 s, while measuring kept up as before (keypoint frames answered
-# 12-13 s after their post, p50).
+# per 1.5-fold growth of its evidence, then once per four-fold growth), and they have a deadline, which measuring
+# has not. With half the others' share, fifty cameras falling due together (`posemetry bench load`) waited 9-10 s
+# (p50) and up to 13 s; with an equal one 6.5-7 s and under 9 s, while measuring kept up as before (keypoint frames
+# answered 12-13 s after their post, p50).
 # The memory is short: a burst (the seed images of a new camera) must not leave its queue behind the others for long.
 QUEUE_SHARES: dict[str, float] = {FRAMES_QUEUE: 2.0, POSE_QUEUE: 2.0, CALIBRATION_QUEUE: 2.0}
 SHARE_HALF_LIFE_S = 10.0
