@@ -106,6 +106,7 @@ def test_a_frame_makes_one_queue_call(client: TestClient, camera: str, dispatche
     assert dispatcher.calibrations == []
 
 
+@pytest.mark.both_backends
 def test_the_frame_that_makes_a_solve_due_asks_for_it_once(
     client: TestClient, camera: str, app: FastAPI, dispatcher: RecordingDispatcher
 ) -> None:
