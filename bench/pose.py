@@ -4,7 +4,7 @@ Target (issue 17): <= 100 ms per Oxford Town Centre 1080p frame with the default
 included. Frames are the Town Centre clip frames (`clip_*.jpg`; with `--frames`, another folder's `*.jpg`, e.g.
 the atrium's with `--plans uncalibrated`), decoded once up front so JPEG decoding is not timed. Each
 configuration (pose model x detector plan) runs on each frame in turn, so load from other processes hits all
-alike. Plans: `uncalibrated` (the pipeline's fixed policy for a camera without a calibration) and `calibrated`
+alike. Plans: `uncalibrated` (the pipeline without a calibration: its first pass sizes the rest) and `calibrated`
 (guided by Town Centre's published calibration, as a solved camera would guide it).
 
 On a machine shared with other work, wall time is unreliable: the report gives the process CPU time (all threads)

@@ -5,8 +5,9 @@ that make people the detector's favourite size (regions.py) plus one small crop 
 at the pose model's working resolution, where bottom-up or multi-person models (MoveNet MultiPose caps at 6
 people) lose the far ones.
 
-One call: plan the detector regions (the fixed uncalibrated policy plus a second look around the people it found
-too small, or bands guided by the camera's calibration), detect and merge (one box per person), read each person
+One call: plan the detector regions (bands guided by the camera's calibration; without one, bands sized by the people
+a first pass found, or where they do not say, the fixed uncalibrated policy plus a second look around the people it
+found too small), detect and merge (one box per person), read each person
 with MoveNet (Thunder or Lightning by the person's size when `pose_model` is `auto`), then assess each person's
 keypoints and posture against the others' boxes (assess.py: which keypoints are trustworthy, who stands). A person
 partly hidden behind a nearer one whose reading is lost (the nearer person's pose, or no trusted shoulders) is read
@@ -30,7 +31,15 @@ from .detector import DEFAULT_INPUT_PX, DEFAULT_SCORE_THRESHOLD, Detections, Per
 from .model_files import POSE_INPUT_PX, PoseChoice, resolve_choice
 from .movenet import CropMode, MoveNet, PoseOutput, crop_window, extract_crop, read_people
 from .occlusion import accept, needs_reading
-from .regions import UNCALIBRATED_SCALES, Region, calibrated_plan, plan_cost, uncalibrated_plan, zoom_regions
+from .regions import (
+    UNCALIBRATED_SCALES,
+    Region,
+    calibrated_plan,
+    observed_plan,
+    plan_cost,
+    uncalibrated_plan,
+    zoom_regions,
+)
 from .sessions import PoseRuntime, native_bf16, resolve_runtime, thread_pool
 from .types import DetectedPerson
 
@@ -226,16 +235,29 @@ class TopDownPose:
         calibration: Calibration | None = None,
         feet_box_px: tuple[float, float, float, float] | None = None,
     ) -> tuple[Detections, RegionTimes]:
-        """The detection stage alone: one box per person, and what each region cost (`last_plan` is the plan)."""
+        """The detection stage alone: one box per person, and what each region cost (`last_plan` is the plan).
+
+        Without a calibration, the plain pass runs first: when the people it found say how tall people appear at
+        each row (regions.observed_plan), the rest of the frame is searched in bands as a calibration would have it
+        searched; otherwise the fixed policy's finer passes, then a second look around the people they found too
+        small (regions.zoom_regions)."""
         height, width = image.shape[:2]
-        self.last_plan = self.plan((width, height), calibration, feet_box_px)
-        detections, times = self.detector.detect(image, self.last_plan)
-        if calibration is None:  # a second look around the people found too small (regions.zoom_regions)
-            finest = max(region.scale for region in self.last_plan)
-            zoom = zoom_regions(detections.boxes_xyxy_px, finest, (width, height))
-            if zoom:
-                detections, times = self.detector.detect(image, zoom, (detections, times))
-                self.last_plan = self.last_plan + zoom
+        if calibration is not None:
+            self.last_plan = self.plan((width, height), calibration, feet_box_px)
+            return self.detector.detect(image, self.last_plan)
+        fixed = self.plan((width, height), None)
+        plain = uncalibrated_plan((width, height), self.uncalibrated_scales[:1], base_input_px=self.detector_input_px)
+        found = self.detector.detect(image, plain)
+        bands = observed_plan(found[0].boxes_xyxy_px, (width, height))
+        if bands is not None:
+            self.last_plan = plain + bands
+            return self.detector.detect(image, bands, found) if bands else found
+        detections, times = self.detector.detect(image, fixed[len(plain) :], found)
+        self.last_plan = fixed
+        zoom = zoom_regions(detections.boxes_xyxy_px, max(region.scale for region in fixed), (width, height))
+        if zoom:
+            detections, times = self.detector.detect(image, zoom, (detections, times))
+            self.last_plan = self.last_plan + zoom
         return detections, times
 
     def _read_hidden(

@@ -6,10 +6,14 @@ RTMDet-nano finds people reliably only in a window of apparent sizes. Measured o
 again above. A 1080p frame letterboxed to 640 px (scale 1/3) puts a 60 px person at 20 px: invisible. So each
 part of the frame should be seen at the scale that makes its people 64-256 px tall (`FAVOURITE_PX`).
 
-Two plans:
+Three plans:
 - Uncalibrated (`uncalibrated_plan`): nothing is known about where people are or how tall they appear, so every
   camera gets the same passes over the whole frame (`UNCALIBRATED_SCALES`: the whole frame at 640 px, which finds
   near people whole, plus the whole frame at native resolution, which lifts 50-100 px people into the window).
+- Observed (`observed_plan`): no calibration, but the 640 px pass found enough whole people at enough rows to say
+  how tall people appear where (`sizes_from_people`: on one ground plane, in proportion to the feet's distance
+  below the horizon line). The frame's other rows are then searched in bands as a calibration would have them
+  searched, for about half the fixed passes' pixels.
 - Calibrated (`calibrated_plan`): a calibration (K, ground normal N, camera height rho, the height prior) predicts
   how tall a standing person appears with their feet at any pixel: project the ground point under the pixel and
   the point a stature above it. Feet rows are grouped into horizontal bands in which that height varies by at most
@@ -31,11 +35,12 @@ ignored: it moves apparent heights by a few per cent at the frame's edges, well 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Final
 
 import numpy as np
+from scipy.optimize import least_squares
 
 if TYPE_CHECKING:
     from service.geometry import Calibration
@@ -82,6 +87,26 @@ EDGE_INPUT_PX: Final = 2.0
 """A box within this many detector pixels of an edge the region shares with the rest of the frame is cut by it."""
 _ROW_STEP_PX: Final = 4
 _COLUMNS: Final = 17
+
+
+SizeOf = Callable[[np.ndarray], np.ndarray]
+"""How large a standing person appears (px) with their feet at each of (N, 2) pixels; NaN where none can stand."""
+
+SIZE_PLANE_MIN_PEOPLE: Final = 6
+"""Fewest whole people a frame's first pass must find before their sizes plan the rest of its search."""
+SIZE_PLANE_MIN_SPREAD: Final = 0.15
+"""Their feet must span at least this share of the image height (one row of people says nothing about the others)."""
+SIZE_PLANE_MAX_ROLL_DEG: Final = 15.0
+"""A horizon rolled further is not a camera watching a floor (or the first pass's people are not on one)."""
+SIZE_PLANE_MAX_MISFIT: Final = 0.15
+"""Median relative misfit of their heights to the plane, above which the frame gets the fixed policy."""
+OBSERVED_BUDGET_PX: Final = 600_000
+"""Detector input pixels the bands of an uncalibrated frame may spend (`observed_plan`), twice a calibrated plan's:
+the sizes are a plane through one frame's people, not a calibration. On the Town Centre clip (198 annotated people
+fully in view) the bands found 192, 191, 195 and 193 of them at 300 000, 375 000, 450 000 and 600 000 (the fixed
+passes and their second look 194 with 1 440 000): the same within the plan-to-plan noise of about two people. At
+450 000 a band of frame 12 boxed two people at once (the man behind the sign board and the man above him) and the
+merge kept that box over the upper man's own (tests/pose/test_occlusion_recall.py); at 600 000 it does not."""
 
 
 @dataclass(frozen=True)
@@ -211,6 +236,56 @@ def uncalibrated_plan(
     return plan
 
 
+def sizes_from_people(boxes_xyxy: np.ndarray, image_size_px: tuple[int, int]) -> SizeOf | None:
+    """A camera's person size by where the feet are, from the people one detector pass found, or None when they do
+    not say.
+
+    People standing on one ground plane appear as tall as their feet lie below the horizon line (both go as one over
+    their distance: the classical single-view relation), so their height is a plane over the image, h = a y + c x + b,
+    zero on the horizon; c is the camera's roll (a rolled camera's horizon is a slanted line). Exact for a level
+    camera; a tilted one bends it by a few per cent over the rows a surveillance view shows people in. A frame's
+    plain pass finds the nearer people whole, and a robust fit of their box heights (soft-L1 on relative misfits: a
+    seated person or a child among them does not tip it) predicts the sizes of the far ones it missed, which is what
+    a calibration tells `calibrated_plan`. Boxes touching the top or bottom edge are cut people and left out. None
+    with fewer than SIZE_PLANE_MIN_PEOPLE, feet within SIZE_PLANE_MIN_SPREAD of the height, people who do not shrink
+    towards the top of the frame, a horizon rolled by more than SIZE_PLANE_MAX_ROLL_DEG, or heights that scatter
+    about the plane by more than SIZE_PLANE_MAX_MISFIT.
+    """
+    boxes = np.asarray(boxes_xyxy, dtype=np.float64).reshape(-1, 4)
+    height_px = float(image_size_px[1])
+    heights, feet_rows = boxes[:, 3] - boxes[:, 1], boxes[:, 3]
+    whole = (boxes[:, 1] > EDGE_INPUT_PX) & (feet_rows < height_px - EDGE_INPUT_PX) & (heights > 0)
+    heights, feet_rows, feet_columns = heights[whole], feet_rows[whole], ((boxes[:, 0] + boxes[:, 2]) / 2)[whole]
+    if len(heights) < SIZE_PLANE_MIN_PEOPLE or np.ptp(feet_rows) < SIZE_PLANE_MIN_SPREAD * height_px:
+        return None
+    # Rows and columns in units of the image height: the plane's coefficients are then pixels of person height.
+    design = np.c_[feet_rows / height_px, feet_columns / height_px, np.ones(len(heights))]
+    start = np.linalg.lstsq(design / heights[:, None], np.ones(len(heights)), rcond=None)[0]
+    plane = least_squares(lambda p: design @ p / heights - 1.0, start, loss="soft_l1", f_scale=0.05).x
+    along_rows, along_columns = float(plane[0]), float(plane[1])
+    if not along_rows > 0 or abs(along_columns) > math.tan(math.radians(SIZE_PLANE_MAX_ROLL_DEG)) * along_rows:
+        return None
+    if np.median(np.abs(design @ plane / heights - 1.0)) > SIZE_PLANE_MAX_MISFIT:
+        return None
+
+    def size_of(feet_px: np.ndarray) -> np.ndarray:
+        feet = np.asarray(feet_px, dtype=np.float64).reshape(-1, 2) / height_px
+        sizes = np.c_[feet[:, 1], feet[:, 0], np.ones(len(feet))] @ plane
+        return np.where(sizes > 0, sizes, np.nan)
+
+    return size_of
+
+
+def observed_plan(boxes_xyxy: np.ndarray, image_size_px: tuple[int, int]) -> list[Region] | None:
+    """calibrated_plan's bands for a camera without a calibration, sized by the people a first pass over the whole
+    frame found (`sizes_from_people`); None when they do not determine the sizes, or when the bands would have to leave
+    rows out to keep to OBSERVED_BUDGET_PX (a view of many small people: the fixed passes look at all of it)."""
+    size_of = sizes_from_people(boxes_xyxy, image_size_px)
+    if size_of is None:
+        return None
+    return _banded_plan(size_of, image_size_px, None, OBSERVED_BUDGET_PX, TARGET_PX, BAND_RATIO, whole=True)
+
+
 def standing_height_px(calibration: Calibration, feet_px: np.ndarray) -> np.ndarray:
     """(N,) apparent height (rows) of a standing person of the prior stature with feet at each (N, 2) pixel.
 
@@ -257,9 +332,10 @@ class _Band:
 
 
 def _row_heights(
-    calibration: Calibration, feet_box: tuple[float, float, float, float]
+    size_of: SizeOf, feet_box: tuple[float, float, float, float]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(rows, smallest, tallest) person size (`person_size_px`) over _COLUMNS columns of each feet row of the box.
+    """(rows, smallest, tallest) person size (`size_of`, e.g. `person_size_px`) over _COLUMNS columns of each feet
+    row of the box.
 
     NaN where the row has no ground.
 
@@ -271,7 +347,7 @@ def _row_heights(
     # Each sampled row stands for the feet rows down to the next one: both ends are sampled.
     ends = np.concatenate([rows, rows + _ROW_STEP_PX])
     grid = np.stack(np.meshgrid(columns, ends), -1).reshape(-1, 2)
-    sizes = person_size_px(calibration, grid).reshape(2, len(rows), len(columns))
+    sizes = size_of(grid).reshape(2, len(rows), len(columns))
     sizes = np.where(sizes > 0, sizes, np.nan).transpose(1, 0, 2).reshape(len(rows), -1)
     seen = np.isfinite(sizes).any(axis=1)
     smallest = np.full(len(rows), np.nan)
@@ -343,9 +419,27 @@ def calibrated_plan(
     """
     if image_size_px is None:
         image_size_px = (round(calibration.image_size[0]), round(calibration.image_size[1]))
+    plan = _banded_plan(
+        lambda feet: person_size_px(calibration, feet), image_size_px, feet_box_px, budget_px, target_px, band_ratio
+    )
+    return plan or uncalibrated_plan(image_size_px)
+
+
+def _banded_plan(
+    size_of: SizeOf,
+    image_size_px: tuple[int, int],
+    feet_box_px: tuple[float, float, float, float] | None,
+    budget_px: float,
+    target_px: float,
+    band_ratio: float,
+    *,
+    whole: bool = False,
+) -> list[Region] | None:
+    """calibrated_plan's bands for any prediction of a standing person's size by where their feet are; `whole`:
+    None rather than a plan that leaves findable rows out to keep to the budget."""
     width_px, height_px = image_size_px
     box = feet_box_px if feet_box_px is not None else (0.0, 0.0, float(width_px), 1.5 * height_px)
-    rows, smallest, tallest = _row_heights(calibration, box)
+    rows, smallest, tallest = _row_heights(size_of, box)
     # Feet so far below the frame that even the head is out of view, or so high that half the body is above it.
     off_frame = ~((rows - tallest < height_px) & (rows - 0.5 * smallest > 0))
     smallest[off_frame], tallest[off_frame] = np.nan, np.nan
@@ -353,6 +447,8 @@ def calibrated_plan(
     while _bands_cost(bands, box, image_size_px) > budget_px and target_px > MIN_TARGET_PX:
         target_px = max(MIN_TARGET_PX, target_px * 0.9)
         bands = _bands(rows, smallest, tallest, target_px, band_ratio)
+    if whole and _bands_cost(bands, box, image_size_px) > budget_px:
+        return None
     while len(bands) > 1 and _bands_cost(bands, box, image_size_px) > budget_px:
         bands = bands[:-1]
     while bands and _bands_cost(bands, box, image_size_px) > budget_px and bands[0].scale > MIN_SCALE:
@@ -362,7 +458,7 @@ def calibrated_plan(
     plan = [region for band in bands for region in _band_regions(band, box, image_size_px)]
     if feet_box_px is not None:
         plan += _unsearched_rows(bands, box, image_size_px)
-    return plan if plan else uncalibrated_plan(image_size_px)
+    return plan
 
 
 def _bands_cost(bands: Sequence[_Band], feet_box: tuple[float, float, float, float], size: tuple[int, int]) -> int:

@@ -64,6 +64,6 @@ class PoseEstimator(Protocol):
         """People in an (H, W, 3) uint8 BGR image (OpenCV's order), most confident detection first.
 
         `calibration`, the camera's current one when it has one, lets the estimator search where and at the scale
-        people can appear; without it, the estimator's fixed policy for an unknown camera.
+        people can appear; without it, the sizes of the people its first pass finds, or its fixed policy.
         """
         ...

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -23,7 +24,7 @@ from service.pose.movenet import (
     read_people,
 )
 from service.pose.pipeline import THUNDER_FROM_CROP_PX, TopDownPose, load_pose_estimator
-from service.pose.regions import Region
+from service.pose.regions import OBSERVED_BUDGET_PX, Region, plan_cost
 from service.pose.sessions import make_session, native_bf16
 from service.pose.types import DetectedPerson
 from service.settings import Settings
@@ -315,6 +316,25 @@ def test_a_calibration_guides_the_detector_to_as_many_people_for_less(
         assert len({round(r.scale, 3) for r in bands}) >= 2  # far people at a larger scale than near ones
     assert pixels["calibrated"] < pixels["uncalibrated"]
     assert found["calibrated"] >= found["uncalibrated"] - 2
+
+
+def test_without_a_calibration_the_first_pass_sizes_the_rest_of_the_search(
+    lightning: TopDownPose, town_frames: dict[int, np.ndarray], atrium_dir: Path
+) -> None:
+    """On Town Centre the plain pass finds enough whole people at enough rows to say how tall people appear where:
+    the rest of the frame is searched in bands (regions.observed_plan), within their budget, for fewer pixels than
+    the fixed passes. On the steep atrium it does not (the people it finds are few and small): the fixed passes, and
+    their second look."""
+    fixed = plan_cost(lightning.plan(IMAGE_SIZE))
+    for image in town_frames.values():
+        lightning.detect(image)
+        plan = lightning.last_plan
+        assert plan[0].whole_frame and not any(region.whole_frame for region in plan[1:])
+        assert plan_cost(plan[1:]) <= OBSERVED_BUDGET_PX and plan_cost(plan) < fixed
+    atrium = cv2.imread(str(atrium_dir / "frame_49650.jpg"))
+    lightning.detect(atrium)
+    passes = [region for region in lightning.last_plan if region.whole_frame]
+    assert len({round(region.scale, 3) for region in passes}) == 2  # the plain pass and the finer one
 
 
 def test_regions_side_by_side_find_exactly_what_one_thread_finds(

@@ -23,12 +23,16 @@ from service.pose.regions import (
     MAX_TILE_INPUT_PX,
     MIN_SCALE,
     MIN_VISIBLE_PX,
+    OBSERVED_BUDGET_PX,
     SHOULDER_WIDTH_M,
+    SIZE_PLANE_MIN_PEOPLE,
     TARGET_PX,
     Region,
     calibrated_plan,
+    observed_plan,
     person_size_px,
     plan_cost,
+    sizes_from_people,
     standing_height_px,
     tiles,
     uncalibrated_plan,
@@ -229,3 +233,74 @@ def test_region_ownership_uses_the_feet_and_shared_edges() -> None:
         ]
     )
     assert region.owns(boxes).tolist() == [True, False, False, False]
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(10.0, 35.0), st.floats(0.7, 1.5), st.floats(3.0, 10.0), st.floats(-4.0, 4.0), st.integers(0, 2**31))
+def test_the_people_a_first_pass_finds_predict_the_size_of_the_others(
+    pitch_deg: float, focal_share: float, height_m: float, roll_deg: float, seed: int
+) -> None:
+    """People on one ground plane appear as tall as their feet lie below the horizon line: a plane through the sizes
+    of the nearer ones (the first pass finds them whole) predicts the size of the standing people in the frame, far
+    ones included: nine in ten within 20 % (a band's sizes span 1.6 x), none off by 30 %. What bends the plane is
+    the camera's tilt, most for the smallest people near the horizon (200 draws, roll up to 4 deg: the worst
+    camera's 90th percentile 13 %, its worst person 17 %; a line in the row alone, blind to roll, 23 and 35 %)."""
+    R = rotation(pitch_deg, roll_deg)
+    cal = synthetic(R, focal_share * 1920, height_m)
+    people = people_in_view(cal, R, (1920, 1080), np.random.default_rng(seed))
+    heights = people[:, 3] - people[:, 1]
+    near = people[heights >= np.quantile(heights, 0.5)][:20, :4] if len(people) else people
+    fitted = sizes_from_people(near, (1920, 1080))
+    if fitted is None:  # too few, or too narrow a spread of rows, in this draw
+        assert len(near) < SIZE_PLANE_MIN_PEOPLE or np.ptp(near[:, 3]) < 0.15 * 1080
+        return
+    feet = np.c_[(people[:, 0] + people[:, 2]) / 2, people[:, 3]]
+    error = np.abs(fitted(feet) / heights - 1.0)
+    assert np.quantile(error, 0.9) <= 0.2 and error.max() < 0.3
+
+
+def test_sizes_that_do_not_make_a_plane_plan_nothing() -> None:
+    rng = np.random.default_rng(3)
+    rows = np.linspace(300.0, 1000.0, 8)
+    heights = 0.3 * (rows - 50.0)
+    boxes = np.c_[np.full(8, 900.0), rows - heights, np.full(8, 960.0), rows]
+    assert sizes_from_people(boxes, (1920, 1080)) is not None
+    assert sizes_from_people(boxes[: SIZE_PLANE_MIN_PEOPLE - 1], (1920, 1080)) is None  # too few
+    assert sizes_from_people(np.c_[boxes[:, :3], np.full(8, 700.0)], (1920, 1080)) is None  # one row
+    upside_down = np.c_[boxes[:, 0], rows - heights[::-1], boxes[:, 2], rows]
+    assert sizes_from_people(upside_down, (1920, 1080)) is None  # people growing towards the horizon
+    scattered = np.c_[boxes[:, 0], rows - heights * rng.uniform(0.3, 1.7, 8), boxes[:, 2], rows]
+    assert sizes_from_people(scattered, (1920, 1080)) is None
+    cut = boxes.copy()
+    cut[:3, 1] = 0.0  # touching the top edge: cut people, left out, which leaves too few
+    assert sizes_from_people(cut, (1920, 1080)) is None
+    columns = np.linspace(100.0, 1800.0, 8)
+    slanted = 0.3 * (rows + 300.0) - 0.3 * math.tan(math.radians(30.0)) * (columns - 960.0)  # horizon rolled 30 deg
+    assert (slanted > 0).all() and sizes_from_people(
+        np.c_[columns, rows - slanted, columns + 60.0, rows], (1920, 1080)
+    ) is None
+    above = sizes_from_people(boxes, (1920, 1080))
+    assert above is not None and np.isnan(above(np.array([[960.0, 40.0]])))[0]  # no one stands above the horizon
+
+
+def test_an_observed_plan_searches_like_a_calibration_within_its_budget() -> None:
+    """Sized by the people a first pass found, the bands own every findable standing person in view, once, whole,
+    within OBSERVED_BUDGET_PX; a view of small people that the budget cannot cover whole gets no observed plan (the
+    fixed passes)."""
+    R = rotation(20.0, 0.0)
+    cal = synthetic(R, 2700.0, 7.8)  # Town Centre's camera, about
+    people = people_in_view(cal, R, (1920, 1080), np.random.default_rng(1))
+    heights = people[:, 3] - people[:, 1]
+    plan = observed_plan(people[heights >= 100.0][:20, :4], (1920, 1080))  # what a first pass finds
+    assert plan and plan_cost(plan) <= OBSERVED_BUDGET_PX
+    findable = people[heights >= 1.2 * MIN_VISIBLE_PX]
+    owners = np.array([region.owns(findable[:, :4]) for region in plan])
+    assert (owners.sum(axis=0) == 1).all()  # each once, whole
+
+    farther = synthetic(R, 2000.0, 8.0)  # the same view, its people 50-220 px: more rows than the budget covers
+    crowd = people_in_view(farther, R, (1920, 1080), np.random.default_rng(1))
+    first_pass = crowd[crowd[:, 3] - crowd[:, 1] >= 100.0][:20, :4]
+    assert sizes_from_people(first_pass, (1920, 1080)) is not None
+    assert observed_plan(first_pass, (1920, 1080)) is None
+    assert sizes_from_people(first_pass, (1920, 1080)) is not None
+    assert observed_plan(first_pass, (1920, 1080)) is None
