@@ -248,7 +248,10 @@ def bench_pose(
         None, help="Folder of frames (default: the Oxford Town Centre clip frames in ../shared/data)."
     ),
     models: str = typer.Option("lightning,auto,thunder", help="Pose models to time, comma-separated."),
-    plans: str = typer.Option("uncalibrated,calibrated", help="Detector plans to time, comma-separated."),
+    plans: str = typer.Option(
+        "uncalibrated,later,calibrated",
+        help="Detector plans to time, comma-separated: a camera's first frame, its later frames, calibrated.",
+    ),
     repeats: int = typer.Option(2, min=1, help="Passes over the frames per configuration."),
     threads: int | None = typer.Option(None, min=1, help="Inference threads (default: every core)."),
     runtimes: str = typer.Option(
@@ -296,7 +299,7 @@ def bench_pose(
 @bench_app.command("recall")
 def bench_recall(
     policies: str = typer.Option(
-        "plain,uncalibrated,calibrated", help="Detector policies to compare, comma-separated (bench/recall.py)."
+        "plain,uncalibrated,later,calibrated", help="Detector policies to compare, comma-separated (bench/recall.py)."
     ),
     atrium_calibration: Path | None = typer.Option(
         None, help="A calibration.json (from `posemetry analyze`) to run the calibrated policy on the atrium too."

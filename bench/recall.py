@@ -16,9 +16,11 @@ Two views, two kinds of truth:
   centre). For every atrium frame, annotated or not, the number of people found.
 
 Policies: `plain` (the frame letterboxed to 640 px, the detector as it was), `uncalibrated` (the pipeline's
-policy without a calibration), `calibrated` (the pipeline guided by a calibration: Town Centre's published one;
-the atrium's only with `--atrium-calibration`, a calibration.json written by `posemetry analyze`). Detector CPU
-time is the process's (all threads) per frame, with the plan's detector input in megapixels (time is linear in it).
+policy for a camera's first frame without a calibration), `later` (its policy for an uncalibrated camera's later
+frames: sized by the usable people of the view's frames this policy ran on before), `calibrated` (the pipeline
+guided by a calibration: Town Centre's published one; the atrium's only with `--atrium-calibration`, a
+calibration.json written by `posemetry analyze`). Detector CPU time is the process's (all threads) per frame, with
+the plan's detector input in megapixels (time is linear in it).
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ from service.pose.merge import inside_fraction, iou_matrix
 from .towncentre import Annotation, as_calibration, camera, load_annotations, load_calibration
 
 Progress = Callable[[str], None]
-POLICIES: Final = ("plain", "uncalibrated", "calibrated")
+POLICIES: Final = ("plain", "uncalibrated", "later", "calibrated")
 LAG_FRAMES: Final = 5
 STRICT_IOU: Final = 0.5
 VISIBLE_INSIDE: Final = 0.8
@@ -207,6 +209,8 @@ def run_recall_benchmark(
     """Detect with each policy on every Town Centre clip frame and every atrium frame, and match to the truth."""
     import os
 
+    from service.frames.detection import SEEN_FRAMES
+    from service.frames.keypoints import people_from_detections
     from service.pose.pipeline import TopDownPose
     from service.pose.regions import uncalibrated_plan
 
@@ -221,8 +225,20 @@ def run_recall_benchmark(
     town_cal = as_calibration(load_calibration(town_dir / "TownCentre-calibration-ci.txt"))
     atrium_cal = calibration_from_json(atrium_calibration) if atrium_calibration is not None else None
 
+    seen: list[list[tuple[float, float, float, float]]] = []  # usable boxes of the view's `later` frames
+
     def detect(policy: str, image: np.ndarray, calibration: Calibration | None):
-        """(detections, detector input pixels) of one policy, None when it cannot run (no calibration)."""
+        """(detections, detector input pixels, detection CPU seconds) of one policy, None when it cannot run (no
+        calibration)."""
+        start = time.process_time()
+        if policy == "later":
+            boxes = np.array([box for people in seen[-SEEN_FRAMES:] for box in people]).reshape(-1, 4)
+            detections, times = estimator.detect(image, seen_boxes_px=boxes)
+            cpu_s = time.process_time() - start
+            # The frame's usable people for the next ones (untimed: pose is not detection).
+            people = people_from_detections(estimator(image, seen_boxes_px=boxes), (image.shape[1], image.shape[0]))
+            seen.append([p.box_px for p in people if p.box_px is not None and p.unusable_reason is None])
+            return detections, sum(region.input_pixels for region in times.regions), cpu_s
         if policy == "plain":
             plan = uncalibrated_plan((image.shape[1], image.shape[0]), (1 / 3,), base_input_px=detector.input_px)
             detections, times = detector.detect(image, plan)
@@ -230,19 +246,19 @@ def run_recall_benchmark(
             detections, times = estimator.detect(image, calibration if policy == "calibrated" else None)
         else:
             return None
-        return detections, sum(region.input_pixels for region in times.regions)
+        return detections, sum(region.input_pixels for region in times.regions), time.process_time() - start
 
     results = []
     for policy in policies:
         result = PolicyResult(policy)
         progress(f"{policy}: {len(town_paths)} Town Centre frames, {len(atrium_paths)} atrium frames")
+        seen.clear()
         for path in town_paths:
             image = _read(path)
-            start = time.process_time()
             found = detect(policy, image, town_cal)
             assert found is not None
-            detections, pixels = found
-            result.town_cpu_s.append(time.process_time() - start)
+            detections, pixels, cpu_s = found
+            result.town_cpu_s.append(cpu_s)
             result.town_pixels.append(pixels)
             people = town_truth(annotations, int(path.stem.split("_")[1]))
             strict, visible = match_town(people, detections.boxes_xyxy_px)
@@ -251,14 +267,14 @@ def run_recall_benchmark(
             result.town_visible += visible.tolist()
             result.town_unmatched += len(detections.scores) - int(strict.sum())
             result.town_frames += 1
+        seen.clear()
         for path in atrium_paths:
             image = _read(path)
-            start = time.process_time()
             found = detect(policy, image, atrium_cal)
             if found is None:
                 break
-            detections, pixels = found
-            result.atrium_cpu_s.append(time.process_time() - start)
+            detections, pixels, cpu_s = found
+            result.atrium_cpu_s.append(cpu_s)
             result.atrium_pixels.append(pixels)
             result.atrium_found[path.name] = len(detections.scores)
             people = [p for p in truth.get(path.name, []) if p["posture"] in result.atrium_hits]

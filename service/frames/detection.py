@@ -7,8 +7,10 @@ files, fail this frame with the reason, not the worker. People are stored only w
 
 A calibrated camera's frames are searched the calibrated way: the camera's current calibration predicts how tall a
 person appears on every row, so the detector looks at each band of the frame at the scale that makes its people
-the detector's favourite size and skips rows above the horizon (service/pose/regions.py). An uncalibrated camera
-gets the fixed policy for an unknown view.
+the detector's favourite size and skips rows above the horizon (service/pose/regions.py). An uncalibrated camera's
+frames are searched in bands sized by the whole standing people its latest frames showed (SEEN_FRAMES), and where
+those do not say how tall people appear where (its first frames, a view without a floor), by the people the frame's
+own first pass finds, or the fixed policy for an unknown view.
 """
 
 from __future__ import annotations
@@ -18,6 +20,8 @@ import time
 import uuid
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from service.calibration.camera_model import calibration_from_version
 from service.calibration.repository import current_calibration
 from service.cameras.static_spots import observe
@@ -25,7 +29,7 @@ from service.domain import DONE, FAILED, GONE, SKIPPED, PersonIn
 from service.frames.images import ImageError, decode
 from service.frames.ingest import record_detection_failure, record_detections
 from service.frames.keypoints import as_static, people_from_detections
-from service.frames.repository import frame_image
+from service.frames.repository import frame_image, seen_people_boxes
 from service.observability.logs import JOBS_LOGGER, log_context
 from service.observability.metrics import POSE_INFERENCE
 from service.observability.request_id import request_id_context
@@ -40,6 +44,11 @@ if TYPE_CHECKING:
     from service.queue import RedisDispatcher
 
 log = logging.getLogger(JOBS_LOGGER)
+
+SEEN_FRAMES = 5
+"""An uncalibrated camera's latest image frames whose usable people size the next frame's search. Town Centre shows
+6-9 usable people per frame: five frames give the size plane 30-45 people over the view's depth, and a camera that
+was turned is sized by its new view five frames later."""
 
 
 def detect_people(
@@ -64,11 +73,16 @@ def detect_people(
         data = None if image is None else image.data
         request_id = frame.request_id
         guide = None if camera is None else _guide(session, camera)
+        seen = (
+            None
+            if camera is None or guide is not None
+            else seen_people_boxes(session, camera.id, camera.epoch, SEEN_FRAMES)
+        )
     if camera is None:
         return GONE
     # The frame's own request id: also right for a job queued again by a starting worker, which has no meta.
     with request_id_context(request_id), log_context(camera_id=camera.id, frame_id=frame_id):
-        outcome = _detect(settings, dispatcher, frame_uuid, camera, data, guide)
+        outcome = _detect(settings, dispatcher, frame_uuid, camera, data, guide, seen)
     if outcome == DONE and measure:
         dispatcher.measure_requested([camera.id])
     return outcome
@@ -107,6 +121,7 @@ def _detect(
     camera: Camera,
     data: bytes | None,
     guide: Calibration | None,
+    seen: list[tuple[float, ...]] | None,
 ) -> str:
     from service.pose.model_files import ModelFilesError
     from service.pose.pipeline import load_pose_estimator
@@ -117,7 +132,7 @@ def _detect(
         _header, bgr = decode(data, max_pixels=settings.max_image_pixels)
         estimator = load_pose_estimator(settings)
         started = time.perf_counter()
-        found = estimator(bgr, guide)
+        found = estimator(bgr, guide, seen_boxes_px=np.asarray(seen, dtype=np.float64).reshape(-1, 4) if seen else None)
         inference_s = time.perf_counter() - started
     except (ImageError, ModelFilesError) as exc:
         log.warning("pose of frame %s of camera %s failed: %s", frame_uuid, camera.id, exc)
@@ -138,12 +153,13 @@ def _detect(
         camera.id,
         len(people),
         inference_s * 1000,
-        "guided by calibration" if guide is not None else "uncalibrated search",
+        f"sized by the {estimator.last_sizing}" if estimator.last_sizing != "fixed passes" else "fixed passes",
         extra={
             "people": len(people),
             "inference_ms": round(inference_s * 1000, 1),
             "pose_model": estimator.name,
             "guided": guide is not None,
+            "sizing": estimator.last_sizing,
         },
     )
     return DONE

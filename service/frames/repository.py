@@ -149,6 +149,33 @@ def frames_points(session: Session, frame_ids: Sequence[uuid.UUID]) -> dict[uuid
     return people
 
 
+def seen_people_boxes(session: Session, camera_id: str, epoch: int, frames: int) -> list[tuple[float, ...]]:
+    """The detector boxes of the usable people (whole, standing) in the camera's latest `frames` image frames
+    whose people are stored (measured or waiting for a calibration), of its current epoch: how tall people appear
+    where, for the next frame's search.
+
+    The frames come newest first off the camera's (camera_id, timestamp, id) index."""
+    latest = (
+        select(_FRAMES.c.id)
+        .where(
+            _FRAMES.c.camera_id == camera_id,
+            _FRAMES.c.source == "image",
+            _FRAMES.c.status.in_(("pending", "done")),
+        )
+        .order_by(_FRAMES.c.timestamp.desc(), _FRAMES.c.id.desc())
+        .limit(frames)
+        .scalar_subquery()
+    )
+    columns = _OBSERVATIONS.c
+    stmt = select(columns.box_left_px, columns.box_top_px, columns.box_right_px, columns.box_bottom_px).where(
+        columns.frame_id.in_(latest),
+        columns.epoch == epoch,
+        columns.usable.is_(True),
+        columns.box_left_px.is_not(None),
+    )
+    return [tuple(row) for row in session.execute(stmt)]
+
+
 def pending_frames(session: Session, camera_id: str | None = None, *, limit: int | None = None) -> list[Frame]:
     """Frames still waiting for a result, oldest first; all cameras when camera_id is None (worker start-up)."""
     stmt = select(Frame).where(Frame.status == "pending")

@@ -21,7 +21,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
-from typing import TYPE_CHECKING, Final
+from typing import TYPE_CHECKING, Final, Literal
 
 import numpy as np
 
@@ -48,6 +48,7 @@ if TYPE_CHECKING:
     from service.settings import Settings
 
 _PLANS_KEPT: Final = 64
+Sizing = Literal["calibration", "camera's people", "frame's people", "fixed passes"]
 
 
 def _plan_key(
@@ -125,6 +126,8 @@ class TopDownPose:
     name: str = field(init=False)
     last_times: StageTimes = field(init=False, default_factory=StageTimes)
     last_plan: list[Region] = field(init=False, default_factory=list)
+    last_sizing: Sizing = field(init=False, default="fixed passes")
+    """What sized the last frame's search (`detect`): its log line says so."""
     _plans: dict[tuple[object, ...], list[Region]] = field(init=False, default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
@@ -175,17 +178,19 @@ class TopDownPose:
         calibration: Calibration | None = None,
         *,
         feet_box_px: tuple[float, float, float, float] | None = None,
+        seen_boxes_px: np.ndarray | None = None,
     ) -> list[DetectedPerson]:
         """People in an (H, W, 3) uint8 BGR image, most confident detection first.
 
         `calibration` (the camera's current one) guides the detector (regions.calibrated_plan); `feet_box_px`
-        limits that search to where the camera's people have been seen standing. Without a calibration, the fixed
-        uncalibrated policy.
+        limits that search to where the camera's people have been seen standing. Without a calibration,
+        `seen_boxes_px` (the boxes of whole standing people the camera's recent frames found) sizes the search
+        when they determine the sizes, else the frame's own first pass does (`detect`).
         """
         image = np.asarray(image_bgr)
         if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
             raise ValueError(f"expected an (H, W, 3) uint8 BGR image, got {image.shape} {image.dtype}")
-        detections, times = self.detect(image, calibration, feet_box_px)
+        detections, times = self.detect(image, calibration, feet_box_px, seen_boxes_px)
         start, start_cpu = time.perf_counter(), time.process_time()
         boxes = detections.boxes_xyxy_px
         models = self._models_for(boxes)
@@ -234,26 +239,32 @@ class TopDownPose:
         image: np.ndarray,
         calibration: Calibration | None = None,
         feet_box_px: tuple[float, float, float, float] | None = None,
+        seen_boxes_px: np.ndarray | None = None,
     ) -> tuple[Detections, RegionTimes]:
         """The detection stage alone: one box per person, and what each region cost (`last_plan` is the plan).
 
-        Without a calibration, the plain pass runs first: when the people it found say how tall people appear at
-        each row (regions.observed_plan), the rest of the frame is searched in bands as a calibration would have it
-        searched; otherwise the fixed policy's finer passes, then a second look around the people they found too
-        small (regions.zoom_regions)."""
+        Without a calibration, when the people the camera's recent frames found (`seen_boxes_px`) say how tall
+        people appear at each row (regions.observed_plan), the plain pass and the bands they size run together, as
+        a calibrated plan's do. Otherwise the plain pass runs first, and the people it found size the bands; where
+        they do not either, the fixed policy's finer passes follow, then a second look around the people they found
+        too small (regions.zoom_regions)."""
         height, width = image.shape[:2]
         if calibration is not None:
-            self.last_plan = self.plan((width, height), calibration, feet_box_px)
+            self.last_plan, self.last_sizing = self.plan((width, height), calibration, feet_box_px), "calibration"
             return self.detector.detect(image, self.last_plan)
         fixed = self.plan((width, height), None)
         plain = uncalibrated_plan((width, height), self.uncalibrated_scales[:1], base_input_px=self.detector_input_px)
+        seen = None if seen_boxes_px is None else observed_plan(seen_boxes_px, (width, height))
+        if seen is not None:
+            self.last_plan, self.last_sizing = plain + seen, "camera's people"
+            return self.detector.detect(image, self.last_plan)
         found = self.detector.detect(image, plain)
         bands = observed_plan(found[0].boxes_xyxy_px, (width, height))
         if bands is not None:
-            self.last_plan = plain + bands
+            self.last_plan, self.last_sizing = plain + bands, "frame's people"
             return self.detector.detect(image, bands, found) if bands else found
         detections, times = self.detector.detect(image, fixed[len(plain) :], found)
-        self.last_plan = fixed
+        self.last_plan, self.last_sizing = fixed, "fixed passes"
         zoom = zoom_regions(detections.boxes_xyxy_px, max(region.scale for region in fixed), (width, height))
         if zoom:
             detections, times = self.detector.detect(image, zoom, (detections, times))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import uuid
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -156,28 +157,38 @@ def test_a_calibrated_cameras_frames_are_searched_the_calibrated_way(
 ) -> None:
     """The worker hands the camera's current calibration to the detector: bands at the scale of the people there.
 
-    Before the camera has a calibration the frame gets the plain pass and bands sized by the people it found; once
-    the published camera is its current calibration, the next frame's plan is exactly the one that calibration
-    predicts.
+    Before the camera has a calibration its first frame gets the plain pass and bands sized by the people that pass
+    found, and its next frame bands sized by the whole standing people the first one stored, planned with the
+    plain pass at once; once the published camera is its current calibration, the next frame's plan is exactly the
+    one that calibration predicts.
     """
     from bench.towncentre import as_calibration, load_calibration
     from service.calibration.repository import add_calibration
     from service.domain import CalibrationValues
     from service.pose.pipeline import load_pose_estimator
+    from service.pose.regions import observed_plan
 
     estimator = load_pose_estimator(get_settings())
+    caplog.set_level("INFO")
     first = store_image(sessions, town_jpeg)
     redis_dispatcher.image_stored(CAMERA, first)
     run_jobs(connection)
     uncalibrated = estimator.plan((1920, 1080))
     assert estimator.last_plan[0] == uncalibrated[0] and estimator.last_plan[1:] != uncalibrated[1:]
+    assert estimator.last_sizing == "frame's people"
+
+    following = store_image(sessions, town_jpeg, timestamp=datetime(2026, 1, 1, 0, 0, 1, tzinfo=UTC))
+    assert jobs.detect_people(str(following)) == DONE
+    with sessions() as session:
+        stored = session.query(Observation).filter_by(frame_id=first, usable=True).all()
+    seen = observed_plan(np.array([person.box_px for person in stored]), (1920, 1080))
+    assert seen and estimator.last_plan == uncalibrated[:1] + seen
 
     truth = as_calibration(load_calibration(TOWN_CENTRE / "TownCentre-calibration-ci.txt"))
     with sessions() as session, session.begin():
         values = CalibrationValues.from_solution(truth, people_used=100, evidence_count=100)
         add_calibration(session, CAMERA, values, make_current=True)
-    second = store_image(sessions, town_jpeg)
-    caplog.set_level("INFO")
+    second = store_image(sessions, town_jpeg, timestamp=datetime(2026, 1, 1, 0, 0, 2, tzinfo=UTC))
     # The pose job alone answers the frame: it measures its camera's pending frames itself, so an image frame never
     # waits for a turn of the frames queue behind every keypoint camera (that queue's job is still waiting).
     assert jobs.detect_people(str(second)) == DONE
@@ -186,7 +197,8 @@ def test_a_calibrated_cameras_frames_are_searched_the_calibrated_way(
     assert guided_plan[1:] and guided_plan[1:] != uncalibrated[1:]
     # The stored calibration round-trips through the database: the same bands, scales equal to float rounding.
     assert _rounded(estimator.last_plan) == _rounded(guided_plan)
-    assert any(getattr(record, "guided", None) is True for record in caplog.records)
+    sizings = [getattr(record, "sizing", None) for record in caplog.records if hasattr(record, "sizing")]
+    assert sizings == ["frame's people", "camera's people", "calibration"]  # what each frame's log line says
     with sessions() as session:
         frame = session.get(Frame, second)
         assert frame is not None and frame.status == "done" and frame.people >= 10  # measured with that camera

@@ -12,16 +12,34 @@ import pytest
 from sqlalchemy import Engine
 from sqlalchemy.orm import Session
 
+from service.calibration.repository import reset_calibration
 from service.cameras.repository import CameraNotFoundError
 from service.domain import FrameOutcome, PersonIn
 from service.frames import ingest
-from service.frames.ingest import add_keypoint_frame
-from service.frames.repository import frame_observations, get_frame, pending_frames, record_frame_outcomes
+from service.frames.ingest import add_image_frame, add_keypoint_frame, record_detections
+from service.frames.repository import (
+    frame_observations,
+    get_frame,
+    pending_frames,
+    record_frame_outcomes,
+    seen_people_boxes,
+)
 from service.store import make_session_factory
 from service.store.models import Frame, Observation
-from tests.support.store import GRID_COLS, T0, add_camera, add_frame, count, evidence_count, person_at, person_in_cell
+from tests.support.store import (
+    GRID_COLS,
+    SIZE_PX,
+    T0,
+    add_camera,
+    add_frame,
+    count,
+    evidence_count,
+    person_at,
+    person_in_cell,
+)
 
 pytestmark = pytest.mark.both_backends
+Box = tuple[float, float, float, float]
 
 
 def test_add_keypoint_frame_stores_people_and_counts_usable_evidence(session: Session) -> None:
@@ -184,3 +202,50 @@ def test_pending_frames_results_and_scoping(session: Session) -> None:
         record_frame_outcomes(session, [FrameOutcome(late.id, "cam-1", late.timestamp, "exploded", 3)])
     gone = FrameOutcome(uuid.uuid4(), "cam-1", late.timestamp, "done", 3, result=result)
     assert record_frame_outcomes(session, [gone]) == 0  # a frame deleted meanwhile is simply not updated
+
+
+def test_seen_people_boxes_are_the_usable_people_of_the_latest_image_frames(session: Session) -> None:
+    """What sizes an uncalibrated camera's next search: the boxes of the whole standing people of its latest image
+    frames whose people are stored, in its current epoch; not older frames, not people who are not evidence, not
+    frames still waiting for their pose, not posted keypoints (no boxes) and not another camera's."""
+    camera = add_camera(session, "cam-1")
+    cameras = {"cam-1": camera, "cam-2": add_camera(session, "cam-2")}
+
+    def image_frame(camera_id: str, second: int, boxes: list[Box], *, usable: bool = True) -> None:
+        frame, _ = add_image_frame(
+            session,
+            cameras[camera_id],
+            timestamp=T0 + timedelta(seconds=second),
+            content_type="image/jpeg",
+            width_px=SIZE_PX,
+            height_px=SIZE_PX,
+            data=b"jpeg",
+        )
+        people = [
+            person_at((box[0] + box[2]) / 2, box[3], box_px=box, unusable_reason=None if usable else "seated")
+            for box in boxes
+        ]
+        if people:
+            assert record_detections(session, frame.id, people, pose_model="test") is not None
+
+    def box(k: int) -> Box:
+        return (10.0 * k, 100.0, 10.0 * k + 5, 200.0)
+
+    image_frame("cam-1", 0, [box(0)])  # the oldest: one frame too many
+    for second in (1, 2, 3):
+        image_frame("cam-1", second, [box(second), box(10 + second)])
+    image_frame("cam-1", 4, [box(4)], usable=False)  # seated people
+    image_frame("cam-1", 5, [])  # still waiting for its pose: not one of the latest
+    add_frame(session, "cam-1", [person_at(50.0, 60.0)], at=T0 + timedelta(seconds=6))  # posted keypoints
+    image_frame("cam-2", 7, [box(7)])
+    session.commit()
+
+    seen = sorted(seen_people_boxes(session, "cam-1", camera.epoch, frames=4))
+    assert seen == sorted([box(k) for k in (1, 2, 3, 11, 12, 13)])
+    assert len(seen_people_boxes(session, "cam-1", camera.epoch, frames=5)) == 7
+    assert seen_people_boxes(session, "cam-2", 1, frames=5) == [box(7)]
+
+    reset_calibration(session, "cam-1", drop_evidence=False)  # a new epoch: the old view's people say nothing
+    session.commit()
+    session.refresh(camera)
+    assert seen_people_boxes(session, "cam-1", camera.epoch, frames=5) == []

@@ -1,4 +1,4 @@
-"""`posemetry bench pose` harness on one real frame: both detector plans timed, the split and the report printable."""
+"""`posemetry bench pose` harness on one real frame: each detector plan timed, the split and the report printable."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ def test_pose_benchmark_on_one_frame(model_dir: Path, town_dir: Path, tmp_path: 
     shutil.copyfile(town_dir / "TownCentre-calibration-ci.txt", tmp_path / "TownCentre-calibration-ci.txt")
     messages: list[str] = []
     result = run_pose_benchmark(model_dir, frames, ("auto",), repeats=1, progress=messages.append)
-    assert [(t.pose_model, t.plan) for t in result.timings] == [("auto", "uncalibrated"), ("auto", "calibrated")]
+    assert [t.plan for t in result.timings] == ["uncalibrated", "later", "calibrated"]
     assert messages
     for timing in result.timings:
         assert len(timing.wall_s) == 1 and timing.people[0] >= 5

@@ -39,10 +39,12 @@ def test_recall_benchmark_on_a_few_frames(model_dir: Path, town_dir: Path, atriu
     atrium = tmp_path / "atrium"
     atrium.mkdir()
     shutil.copyfile(atrium_dir / "frame_49650.jpg", atrium / "frame_49650.jpg")
-    result = run_recall_benchmark(model_dir, town, atrium, ANNOTATION, ("plain", "calibrated"))
-    plain, calibrated = result.results
+    result = run_recall_benchmark(model_dir, town, atrium, ANNOTATION, ("plain", "later", "calibrated"))
+    plain, later, calibrated = result.results
     assert plain.town_frames == 2 and plain.town_recall()[1] >= 15
     assert plain.town_recall()[0] >= 0.8 * plain.town_recall()[1]
+    # The second frame sized by the first one's people: bands beyond the plain pass, and no fewer people found.
+    assert later.town_pixels[1] > plain.town_pixels[1] and later.town_recall()[0] >= plain.town_recall()[0]
     assert plain.atrium_hits["standing"][1] == 10 and not calibrated.atrium_found  # no atrium calibration given
     lines = recall_lines(result)
     assert any(line.strip().startswith("plain") and "%" in line for line in lines)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from bench.towncentre import as_calibration, load_annotations, load_calibration
-from service.frames.keypoints import coco_centres
+from service.frames.keypoints import coco_centres, people_from_detections
 from service.pose.assess import POSTURES
 from service.pose.detector import PersonDetector, schedule
 from service.pose.model_files import DETECTOR, LIGHTNING, POSE_INPUT_PX, REGISTRY, PoseModelName
@@ -24,7 +24,7 @@ from service.pose.movenet import (
     read_people,
 )
 from service.pose.pipeline import THUNDER_FROM_CROP_PX, TopDownPose, load_pose_estimator
-from service.pose.regions import OBSERVED_BUDGET_PX, Region, plan_cost
+from service.pose.regions import OBSERVED_BUDGET_PX, Region, observed_plan, plan_cost
 from service.pose.sessions import make_session, native_bf16
 from service.pose.types import DetectedPerson
 from service.settings import Settings
@@ -335,6 +335,41 @@ def test_without_a_calibration_the_first_pass_sizes_the_rest_of_the_search(
     lightning.detect(atrium)
     passes = [region for region in lightning.last_plan if region.whole_frame]
     assert len({round(region.scale, 3) for region in passes}) == 2  # the plain pass and the finer one
+
+
+def test_a_cameras_earlier_people_size_its_next_frames_whole_search(
+    lightning: TopDownPose, town_frames: dict[int, np.ndarray], town_dir: Path, atrium_dir: Path
+) -> None:
+    """Without a calibration, the whole standing people of the camera's other frames say how tall people appear
+    where: the plain pass and the bands they size run as one plan (no first pass to wait for), within the bands'
+    budget, and find as many annotated people as sizing each frame by its own first pass (measured on these five
+    frames: 40 either way of the 55 >= 60 px tall at IoU >= 0.5 with the same frame's box). Too few of them, and the
+    frame's own first pass sizes the search as before; on the steep atrium, where they say nothing whole, the fixed
+    passes."""
+    annotations = load_annotations(town_dir / "TownCentre-groundtruth.top", set(town_frames))
+    usable = {
+        number: [p.box_px for p in people_from_detections(lightning(image), IMAGE_SIZE) if p.unusable_reason is None]
+        for number, image in town_frames.items()
+    }
+    found = {"frame's people": 0, "camera's people": 0}
+    for number, image in town_frames.items():
+        seen = np.array([box for other, boxes in usable.items() if other != number for box in boxes])
+        for sizing, boxes in (("frame's people", None), ("camera's people", seen)):
+            detections, _ = lightning.detect(image, seen_boxes_px=boxes)
+            assert lightning.last_sizing == sizing
+            for person in annotations[number]:
+                if person.body_xyxy is not None and person.body_xyxy[3] - person.body_xyxy[1] >= MIN_HEIGHT_PX:
+                    best = max((iou(person.body_xyxy, b) for b in detections.boxes_xyxy_px), default=0.0)
+                    found[sizing] += best >= 0.5
+        bands = observed_plan(seen, IMAGE_SIZE)
+        assert bands and lightning.last_plan == lightning.plan(IMAGE_SIZE)[:1] + bands
+        assert plan_cost(bands) <= OBSERVED_BUDGET_PX
+    assert found["camera's people"] >= found["frame's people"] - 2
+    lightning.detect(town_frames[0], seen_boxes_px=seen[:3])
+    assert lightning.last_sizing == "frame's people"
+    atrium = cv2.imread(str(atrium_dir / "frame_49650.jpg"))
+    lightning.detect(atrium, seen_boxes_px=np.array([p.box_xyxy_px for p in lightning(atrium)]))
+    assert lightning.last_sizing == "fixed passes"
 
 
 def test_regions_side_by_side_find_exactly_what_one_thread_finds(
