@@ -10,10 +10,10 @@ Three plans:
 - Uncalibrated (`uncalibrated_plan`): nothing is known about where people are or how tall they appear, so every
   camera gets the same passes over the whole frame (`UNCALIBRATED_SCALES`: the whole frame at 640 px, which finds
   near people whole, plus the whole frame at native resolution, which lifts 50-100 px people into the window).
-- Observed (`observed_plan`): no calibration, but the 640 px pass found enough whole people at enough rows to say
-  how tall people appear where (`sizes_from_people`: on one ground plane, in proportion to the feet's distance
-  below the horizon line). The frame's other rows are then searched in bands as a calibration would have them
-  searched, for about half the fixed passes' pixels.
+- Observed (`observed_plan`): no calibration, but whole people at enough rows say how tall people appear where
+  (`sizes_from_people`: on one ground plane, in proportion to the feet's distance below the horizon line): the
+  usable people of the camera's latest frames, or those the frame's own 640 px pass found. The frame's other rows
+  are then searched in bands as a calibration would have them searched, for about half the fixed passes' pixels.
 - Calibrated (`calibrated_plan`): a calibration (K, ground normal N, camera height rho, the height prior) predicts
   how tall a standing person appears with their feet at any pixel: project the ground point under the pixel and
   the point a stature above it. Feet rows are grouped into horizontal bands in which that height varies by at most
