@@ -59,6 +59,7 @@ class SceneConfig:
     forward_lean_deg: float = 0.0  # walkers' own forward lean along their walk, N(f, f / 2) degrees, kept
     noise_rel: float = 0.0  # keypoint noise std = hypot(noise_px, noise_rel x segment length)
     observations_per_person: int = 1  # each individual seen this many times along a short walk
+    walk_step_m: float = 0.7  # ground distance between an individual's sightings (0.7 m: 0.5 s at walking pace)
 
     @classmethod
     def paper(cls, **overrides: object) -> SceneConfig:
@@ -288,7 +289,11 @@ def _place_visible_people(
             if len(owner) == n:
                 break
             person = owner[-1] + 1 if owner else 0
-            walk, heading = _walk(rng, candidate, normal, per_person) if per_person > 1 else (candidate[None], None)
+            walk, heading = (
+                _walk(rng, candidate, normal, per_person, config.walk_step_m)
+                if per_person > 1
+                else (candidate[None], None)
+            )
             top = walk + heights[person] * normal
             seen = camera.sees(walk, config.image_size) & camera.sees(top, config.image_size)
             for point in walk[seen][: n - len(owner)]:
@@ -303,16 +308,18 @@ def _place_visible_people(
     return None
 
 
-def _walk(rng: np.random.Generator, start: FloatArray, normal: FloatArray, count: int) -> tuple[FloatArray, FloatArray]:
-    """count ground points 0.7 m apart (a stride at walking pace between sampled frames) in a random direction,
-    and that direction."""
+def _walk(
+    rng: np.random.Generator, start: FloatArray, normal: FloatArray, count: int, step_m: float
+) -> tuple[FloatArray, FloatArray]:
+    """count ground points step_m apart (the walk between sampled frames) in a random direction, and that
+    direction."""
     helper = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
     e1 = np.cross(normal, helper)
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(normal, e1)
     angle = rng.uniform(0, 2 * np.pi)
     direction = np.cos(angle) * e1 + np.sin(angle) * e2
-    return start + 0.7 * np.arange(count)[:, None] * direction, direction
+    return start + step_m * np.arange(count)[:, None] * direction, direction
 
 
 def _lean(

@@ -30,6 +30,7 @@ from .posterior import (
     estimate_noise,
     estimate_noise_and_lean,
     fit_posterior,
+    with_groups,
 )
 from .problem import CalibrationProblem, SolveOptions
 from .quality import assess
@@ -215,35 +216,48 @@ def calibrate(
     options: SolveOptions | None = None,
     *,
     tracks: ArrayLike | None = None,
+    repeats: ArrayLike | None = None,
 ) -> Calibration:
     """Calibrate a camera from people's shoulder-centre (tops) and ankle-centre (bottoms) pixels.
 
     tracks, optional, labels each observation with the individual it is (equal labels: the same person seen
-    in several frames, who has one height); by default every observation is its own individual.
+    in several frames, who has one height); by default every observation is its own individual. repeats,
+    optional, labels the individuals they could be (a grouping coarser than tracks: tracks.possible_repeats): the
+    camera is the one fitted to `tracks`, its sigma the one with one height per such group.
     """
     options = SolveOptions() if options is None else options
     tops_px, bottoms_px, usable = validate_keypoints(tops, bottoms, problem.image_size_px)
     track = _tracks(tracks, len(tops_px))
+    people = _People(track, track if repeats is None else _tracks(repeats, len(tops_px)))
     if problem.lens is None:
-        return _solve(tops_px, bottoms_px, usable, track, problem, options)
+        return _solve(tops_px, bottoms_px, usable, people, problem, options)
     known = problem.known_focal_px
     focal = known or _lens_focal_px(tops_px, bottoms_px, usable, problem, options)
-    cal = _solve(*_undistort_with(tops_px, bottoms_px, problem, focal), usable, track, problem, options)
+    cal = _solve(*_undistort_with(tops_px, bottoms_px, problem, focal), usable, people, problem, options)
     if known is None and abs(cal.fx / focal[0] - 1.0) > 1e-6:
         # Undistorted with the consensus's focal length; the final one differs a little: once more with it.
-        cal = _solve(*_undistort_with(tops_px, bottoms_px, problem, (cal.fx, cal.fy)), usable, track, problem, options)
+        cal = _solve(*_undistort_with(tops_px, bottoms_px, problem, (cal.fx, cal.fy)), usable, people, problem, options)
     return cal
+
+
+@dataclass(frozen=True)
+class _People:
+    """Who the observations are: `track` the individuals the camera is fitted to, `repeats` those its sigma assumes."""
+
+    track: np.ndarray
+    repeats: np.ndarray
 
 
 def _solve(
     tops_px: FloatArray,
     bottoms_px: FloatArray,
     usable: FloatArray,
-    track: np.ndarray,
+    people: _People,
     problem: CalibrationProblem,
     options: SolveOptions,
 ) -> Calibration:
     """The pipeline on keypoints free of the user's lens."""
+    track = people.track
     frame = ImageFrame.from_size(problem.image_size_px, problem.principal_point_px)
     known = problem.known_focal_px
     focal_n = None if known is None else (known[0] / frame.scale_px, known[1] / frame.scale_px)
@@ -258,6 +272,8 @@ def _solve(
     posterior = None
     if optimise or options.uncertainty:
         posterior = _posterior(stage, track, problem, options, focal_n, noise_floor_n, optimise, minimum)
+        inliers = np.flatnonzero(stage.inliers)[posterior.kept]
+        posterior = with_groups(posterior, people.repeats[inliers])
     cal = _finish(stage, posterior, problem, track, optimise)
     check_plausible(cal, minimum)
     return replace(cal, quality=assess(cal)) if cal.uncertainty is not None else cal

@@ -25,7 +25,7 @@ from .calibrate import calibrate
 from .calibration import Calibration
 from .errors import CalibrationError
 from .problem import CalibrationProblem, SolveOptions
-from .tracks import link_tracks
+from .tracks import link_tracks, possible_repeats
 
 # Pose-model jitter on a still person is 1-3 px at 1080p; this is comfortably above it as a share of the image.
 DEFAULT_RADIUS_FRACTION = 0.002
@@ -161,31 +161,38 @@ def solve_evidence(
     (service.geometry.tracks), so one person seen in many frames has one height; `appearance` (each observation's
     descriptor or None) also links them across gaps of seconds (a camera posting an image every few seconds), and
     `client_tracks` (each observation's client track id or None: a keypoint client's tracker) makes each id one
-    individual (across gaps of up to a minute). Repeats are collapsed (see the module docstring), then, with `cap`, a
-    spatially balanced sample of at most `cap` is drawn from what remains (`balanced_sample`, seeded by
-    options.seed), and `calibrate` runs on it. A solve that cannot produce a camera returns its reason instead of
-    raising, because callers record failures with the evidence they were given (the calibration worker keeps them
-    in the history; `posemetry analyze` reports them).
+    individual (across gaps of up to a minute); the sigma is the one with one height per individual they could be
+    (`possible_repeats`: frames seconds apart leave one walker's sightings unlinked). Repeats are collapsed (see the
+    module docstring), then, with `cap`, a spatially balanced sample of at most `cap` is drawn from what remains
+    (`balanced_sample`, seeded by options.seed), and `calibrate` runs on it. A solve that cannot produce a camera
+    returns its reason instead of raising, because callers record failures with the evidence they were given (the
+    calibration worker keeps them in the history; `posemetry analyze` reports them).
     """
     options = SolveOptions() if options is None else options
     tops = np.asarray(tops_px, dtype=float).reshape(-1, 2)
     bottoms = np.asarray(bottoms_px, dtype=float).reshape(-1, 2)
     if times_s is None and client_tracks is not None:
         raise ValueError("client_tracks link observations with their frame times: pass times_s too")
-    tracks = (
-        None
-        if times_s is None
-        else link_tracks(
+    tracks = repeats = None
+    if times_s is not None:
+        tracks = link_tracks(
             times_s, tops, bottoms, height_m=problem.height_m, appearance=appearance, client_tracks=client_tracks
         )
-    )
+        repeats = possible_repeats(
+            times_s, tops, bottoms, tracks, height_m=problem.height_m, client_tracks=client_tracks
+        )
     image_size_px = problem.image_size_px
     used = collapse_repeats(tops, bottoms, repeat_radius_px(image_size_px))
     if cap is not None:
         used = used[balanced_sample(bottoms[used], image_size_px, cap, seed=options.seed or 0)]
     try:
         solution = calibrate(
-            tops[used], bottoms[used], problem, options, tracks=None if tracks is None else tracks[used]
+            tops[used],
+            bottoms[used],
+            problem,
+            options,
+            tracks=None if tracks is None else tracks[used],
+            repeats=None if repeats is None else repeats[used],
         )
     except CalibrationError as exc:
         return EvidenceSolve(used, None, str(exc))

@@ -193,6 +193,24 @@ def fit_posterior(
     return Posterior(problem, fit, noise, kept)
 
 
+def with_groups(posterior: Posterior, groups: np.ndarray) -> Posterior:
+    """The posterior with theta's covariance evaluated with one height (and lean) per group of `groups` (one label
+    per fitted observation) instead of one per individual: the same camera, the sigma of a sample in which each group
+    may be one person (tracks.possible_repeats). Unchanged when the groups are the individuals."""
+    obs, fit = posterior.problem.observations, posterior.fit
+    labels = np.unique(groups, return_inverse=True)[1].ravel()
+    if len(np.unique(labels)) == obs.tracks and len(np.unique(obs.track * (labels.max() + 1) + labels)) == obs.tracks:
+        return posterior
+    grouped = replace(obs, track=labels, tracks=int(labels.max()) + 1)
+    problem = replace(posterior.problem, observations=grouped)
+    mu = float(problem.cameras(fit.theta).mu[0, 0])
+    heights_m = mu * (1.0 + fit.person[obs.track, 0])
+    start = start_people(heights_m, grouped, mu, fit.person.shape[1])
+    # theta held: each group takes its best height for this camera, and the covariance is evaluated there.
+    again = fit_map(problem, fit.theta, start, optimise=False, ankles=fit.ankles_n)
+    return replace(posterior, fit=replace(fit, covariance=again.covariance))
+
+
 def canonical_covariance(problem: MapProblem, theta: FloatArray, cov_theta: FloatArray, scale_px: float) -> FloatArray:
     """Covariance of the canonical parameters (uncertainty.CANONICAL_PARAMETERS) from theta's (first order)."""
     cams = problem.cameras(theta)
