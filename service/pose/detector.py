@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from .merge import VOTE_FLOOR, merge_boxes
-from .regions import STRIDE_PX, Region, ceil_to
+from .regions import STRIDE_PX, Region, SizeOf, ceil_to
 from .sessions import Session, default_threads, make_session, thread_pool
 
 DEFAULT_INPUT_PX: Final = 640
@@ -158,10 +158,12 @@ class PersonDetector:
         image_bgr: np.ndarray,
         plan: Sequence[Region],
         earlier: tuple[Detections, RegionTimes] | None = None,
+        size_of: SizeOf | None = None,
     ) -> tuple[Detections, RegionTimes]:
         """One box per person over a plan of regions (each region keeps the people it owns; then merge.py).
 
         `earlier`: what an earlier call on the same image found and spent, merged into this answer (a second look).
+        `size_of`: how tall a standing person appears with their feet at each pixel, where known (merge.py, rule 4).
         """
         times = RegionTimes()
         if earlier is not None:
@@ -191,6 +193,7 @@ class PersonDetector:
             np.concatenate([np.zeros(0), *(scores for _, scores in times.found)]),
             np.concatenate([np.zeros(0, dtype=int), *(np.full(len(s), k) for k, (_, s) in enumerate(times.found))]),
             threshold=self.score_threshold,
+            size_of=size_of,
         )
         times.merge_s += time.perf_counter() - merge_start
         times.elapsed_s += time.perf_counter() - start

@@ -28,13 +28,21 @@ a table of seated people gets one loose box around the group besides each person
    than one of them, is a crowd (a table of seated people), not a person. Checked before rule 2, so that the
    people of a group are not merged into its box; a confident box around a person and the child in front of them
    is not a group.
+4. Two people one above the other: where it is known how tall a standing person appears with their feet at each
+   pixel (a calibration, or the plane of the camera's people: regions.py), a box at least `STACKED` times that
+   tall at its feet is not one person's whole body, so rule 1 never gives a person that extent. A Town Centre band
+   boxed the man walking past and the man behind the sign board below him at once (299 px where a person stands
+   184 px tall); as the upper man's whole body it replaced his own box and covered the hidden man's too.
 """
 
 from __future__ import annotations
 
-from typing import Final
+from typing import TYPE_CHECKING, Final
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from .regions import SizeOf
 
 NMS_IOU: Final = 0.5
 VOTE_FLOOR: Final = 0.2
@@ -42,6 +50,9 @@ VOTE_FLOOR: Final = 0.2
 docs/benchmarks/pose.md): below 0.2 the boxes matching nobody grow much faster than the people found."""
 CONTAINED: Final = 0.8
 SHARED_TOP: Final = 0.15
+STACKED: Final = 1.45
+"""Rule 4: a box this many times the size expected at its feet is not one person (the size plane's worst misses, on
+synthetic cameras, are ~1.35; a calibration's are smaller)."""
 
 
 def iou_matrix(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -70,14 +81,20 @@ def inside_fraction(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def merge_boxes(
-    boxes_xyxy: np.ndarray, scores: np.ndarray, sources: np.ndarray | None = None, *, threshold: float = 0.0
+    boxes_xyxy: np.ndarray,
+    scores: np.ndarray,
+    sources: np.ndarray | None = None,
+    *,
+    threshold: float = 0.0,
+    size_of: SizeOf | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(boxes, scores) with one box per person (rules in the module docstring), most confident first.
 
     `sources`: the region each box was found in (default: all in one). A person's score is their votes' fused
     score (rule 1), and only people whose fused score reaches `threshold` are kept; a box below the threshold may
     still be a vote. A partial box's score passes to the outer box it is merged into, so the person keeps the
-    detector's best confidence in them.
+    detector's best confidence in them. `size_of`: how tall a standing person appears with their feet at each pixel
+    (NaN where unknown), for rule 4; without it, rule 4 does not apply.
     """
     boxes = np.asarray(boxes_xyxy, dtype=np.float64).reshape(-1, 4)
     scores = np.asarray(scores, dtype=np.float64).reshape(-1)
@@ -101,7 +118,8 @@ def merge_boxes(
         votes[leader][int(sources[i])] = max(votes[leader].get(int(sources[i]), 0.0), float(scores[i]))
         members[leader].append(i)
     fused = np.array([1.0 - np.prod([1.0 - v for v in vote.values()]) for vote in votes])
-    extent = np.array([_whole_body(boxes, k, members[n]) for n, k in enumerate(kept)], dtype=np.int64)
+    stacked = _stacked(boxes, size_of)
+    extent = np.array([_whole_body(boxes, k, members[n], stacked) for n, k in enumerate(kept)], dtype=np.int64)
     chosen = fused >= threshold
     boxes, scores = boxes[extent][chosen], fused[chosen]
     order = np.argsort(-scores, kind="stable")
@@ -129,7 +147,16 @@ def merge_boxes(
     return boxes[order], scores[order]
 
 
-def _whole_body(boxes: np.ndarray, leader: int, members: list[int]) -> int:
+def _stacked(boxes: np.ndarray, size_of: SizeOf | None) -> np.ndarray:
+    """(N,) rule 4: boxes too tall to be one person standing where their feet are."""
+    if size_of is None or not len(boxes):
+        return np.zeros(len(boxes), dtype=bool)
+    expected = np.asarray(size_of(np.c_[(boxes[:, 0] + boxes[:, 2]) / 2.0, boxes[:, 3]]), dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        return (boxes[:, 3] - boxes[:, 1]) >= STACKED * expected
+
+
+def _whole_body(boxes: np.ndarray, leader: int, members: list[int], stacked: np.ndarray) -> int:
     """The box one person's votes keep: the most confident, unless a vote is the same person's whole body.
 
     A person partly hidden behind someone nearer is boxed by the detector both to their visible upper body
@@ -138,7 +165,8 @@ def _whole_body(boxes: np.ndarray, leader: int, members: list[int]) -> int:
     a same-top pair, because the feet are what the geometry measures from; this keeps that preference when the
     pair overlaps that much. A vote counts as the whole body when it holds the kept box (`CONTAINED`), shares its
     top (`SHARED_TOP` of its own height) and reaches clearly lower (its bottom more than `SHARED_TOP` of its
-    height below), so a same-extent jitter never moves the box; of several, the most confident (lowest index).
+    height below), so a same-extent jitter never moves the box; of several, the most confident (lowest index). A box
+    too tall to be one person (`stacked`, rule 4) is no one's whole body.
     """
     top_px, bottom_px = boxes[leader, 1], boxes[leader, 3]
     for i in sorted(members):
@@ -146,6 +174,7 @@ def _whole_body(boxes: np.ndarray, leader: int, members: list[int]) -> int:
         outer_height_px = outer[3] - outer[1]
         if (
             i != leader
+            and not stacked[i]
             and inside_fraction(boxes[leader], outer)[0, 0] >= CONTAINED
             and abs(outer[1] - top_px) <= SHARED_TOP * outer_height_px
             and outer[3] - bottom_px > SHARED_TOP * outer_height_px

@@ -19,7 +19,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from functools import lru_cache
+from functools import lru_cache, partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Final, Literal
 
@@ -37,6 +37,8 @@ from .regions import (
     calibrated_plan,
     observed_plan,
     plan_cost,
+    sizes_from_people,
+    standing_height_px,
     uncalibrated_plan,
     zoom_regions,
 )
@@ -249,20 +251,23 @@ class TopDownPose:
         they do not either, the fixed policy's finer passes follow, then a second look around the people they found
         too small (regions.zoom_regions)."""
         height, width = image.shape[:2]
+        size = (width, height)
         if calibration is not None:
-            self.last_plan, self.last_sizing = self.plan((width, height), calibration, feet_box_px), "calibration"
-            return self.detector.detect(image, self.last_plan)
-        fixed = self.plan((width, height), None)
-        plain = uncalibrated_plan((width, height), self.uncalibrated_scales[:1], base_input_px=self.detector_input_px)
-        seen = None if seen_boxes_px is None else observed_plan(seen_boxes_px, (width, height))
-        if seen is not None:
-            self.last_plan, self.last_sizing = plain + seen, "camera's people"
-            return self.detector.detect(image, self.last_plan)
+            self.last_plan, self.last_sizing = self.plan(size, calibration, feet_box_px), "calibration"
+            return self.detector.detect(image, self.last_plan, size_of=partial(standing_height_px, calibration))
+        fixed = self.plan(size, None)
+        plain = uncalibrated_plan(size, self.uncalibrated_scales[:1], base_input_px=self.detector_input_px)
+        seen = None if seen_boxes_px is None else sizes_from_people(seen_boxes_px, size)
+        bands = None if seen is None else observed_plan(seen, size)
+        if seen is not None and bands is not None:
+            self.last_plan, self.last_sizing = plain + bands, "camera's people"
+            return self.detector.detect(image, self.last_plan, size_of=seen)
         found = self.detector.detect(image, plain)
-        bands = observed_plan(found[0].boxes_xyxy_px, (width, height))
-        if bands is not None:
+        own = sizes_from_people(found[0].boxes_xyxy_px, size)
+        bands = None if own is None else observed_plan(own, size)
+        if own is not None and bands is not None:
             self.last_plan, self.last_sizing = plain + bands, "frame's people"
-            return self.detector.detect(image, bands, found) if bands else found
+            return self.detector.detect(image, bands, found, size_of=own)
         detections, times = self.detector.detect(image, fixed[len(plain) :], found)
         self.last_plan, self.last_sizing = fixed, "fixed passes"
         zoom = zoom_regions(detections.boxes_xyxy_px, max(region.scale for region in fixed), (width, height))

@@ -277,14 +277,11 @@ def sizes_from_people(boxes_xyxy: np.ndarray, image_size_px: tuple[int, int]) ->
 
 
 def observed_plan(
-    boxes_xyxy: np.ndarray, image_size_px: tuple[int, int], budget_px: float = OBSERVED_BUDGET_PX
+    size_of: SizeOf, image_size_px: tuple[int, int], budget_px: float = OBSERVED_BUDGET_PX
 ) -> list[Region] | None:
-    """calibrated_plan's bands for a camera without a calibration, sized by the people a first pass over the whole
-    frame found (`sizes_from_people`); None when they do not determine the sizes, or when the bands would have to leave
-    rows out to keep to OBSERVED_BUDGET_PX (a view of many small people: the fixed passes look at all of it)."""
-    size_of = sizes_from_people(boxes_xyxy, image_size_px)
-    if size_of is None:
-        return None
+    """calibrated_plan's bands for a camera without a calibration, sized by its people (`sizes_from_people`); None
+    when the bands would have to leave rows out to keep to OBSERVED_BUDGET_PX (a view of many small people: the
+    fixed passes look at all of it)."""
     return _banded_plan(size_of, image_size_px, None, budget_px, TARGET_PX, BAND_RATIO, whole=True)
 
 

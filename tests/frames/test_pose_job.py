@@ -166,7 +166,7 @@ def test_a_calibrated_cameras_frames_are_searched_the_calibrated_way(
     from service.calibration.repository import add_calibration
     from service.domain import CalibrationValues
     from service.pose.pipeline import load_pose_estimator
-    from service.pose.regions import observed_plan
+    from service.pose.regions import observed_plan, sizes_from_people
 
     estimator = load_pose_estimator(get_settings())
     caplog.set_level("INFO")
@@ -181,7 +181,8 @@ def test_a_calibrated_cameras_frames_are_searched_the_calibrated_way(
     assert jobs.detect_people(str(following)) == DONE
     with sessions() as session:
         stored = session.query(Observation).filter_by(frame_id=first, usable=True).all()
-    seen = observed_plan(np.array([person.box_px for person in stored]), (1920, 1080))
+    size_of = sizes_from_people(np.array([person.box_px for person in stored]), (1920, 1080))
+    seen = None if size_of is None else observed_plan(size_of, (1920, 1080))
     assert seen and estimator.last_plan == uncalibrated[:1] + seen
 
     truth = as_calibration(load_calibration(TOWN_CENTRE / "TownCentre-calibration-ci.txt"))

@@ -43,6 +43,50 @@ def test_an_upper_body_box_inside_a_whole_body_box_is_merged_into_it() -> None:
     assert scores[0] == 0.7
 
 
+def _plane(feet_px: np.ndarray) -> np.ndarray:
+    """A size plane like Town Centre's near its right edge: 184 px tall with feet at row 471, zero at row -90."""
+    return (np.asarray(feet_px, dtype=float)[:, 1] + 90.0) * 184.0 / 561.0
+
+
+# Town Centre frame 12, three regions' boxes near the right edge (a plan sized by the frame's own people, 450 000
+# pixels): the man walking past (two regions), the man behind the sign board below him (three boxes, two regions),
+# and one box over both, 299 px tall where a person stands 184 px.
+_FRAME_12 = np.array(
+    [
+        [1809.0, 173.0, 1883.0, 347.0],
+        [1803.0, 279.0, 1881.0, 492.0],
+        [1807.0, 287.0, 1881.0, 486.0],
+        [1805.0, 172.0, 1884.0, 471.0],
+        [1813.0, 283.0, 1880.0, 417.0],
+        [1805.0, 172.0, 1881.0, 346.0],
+    ]
+)
+_FRAME_12_SCORES = np.array([0.61, 0.25, 0.32, 0.28, 0.26, 0.70])
+_FRAME_12_REGIONS = np.array([0, 0, 1, 1, 1, 2])
+
+
+def test_a_box_of_two_people_one_above_the_other_is_nobodys_whole_body() -> None:
+    """Rule 4: the box over both men overlaps the upper man's own boxes most and holds them, sharing their top, so
+    rule 1 took it for his whole body down to hidden feet; it then covered the hidden man too (two boxes over him).
+    With the sizes known it is too tall for one person: each man keeps his own box."""
+    merged, _ = merge_boxes(_FRAME_12, _FRAME_12_SCORES, _FRAME_12_REGIONS, threshold=0.3, size_of=_plane)
+    assert merged.tolist() == [[1805.0, 172.0, 1881.0, 346.0], [1807.0, 287.0, 1881.0, 486.0]]
+    merged, _ = merge_boxes(_FRAME_12, _FRAME_12_SCORES, _FRAME_12_REGIONS, threshold=0.3)
+    assert merged.tolist()[0] == [1805.0, 172.0, 1884.0, 471.0]  # without sizes: the old answer
+
+
+def test_a_hidden_persons_whole_body_keeps_its_extent_where_sizes_are_known() -> None:
+    """A whole-body vote as tall as a person at its feet is still the person's extent (rule 1), and one taller
+    than STACKED times that is not."""
+    upper = [1600.0, 700.0, 1700.0, 900.0]  # IoU 0.57 with the whole body: one person for rule 1
+    whole = [1598.0, 702.0, 1702.0, 1040.0]  # 338 px, feet at row 1040
+    boxes, scores = np.array([upper, whole]), np.array([0.47, 0.33])
+    merged, _ = merge_boxes(boxes, scores, size_of=lambda feet: np.full(len(feet), 330.0))
+    assert merged.tolist() == [whole]
+    merged, _ = merge_boxes(boxes, scores, size_of=lambda feet: np.full(len(feet), 330.0 / 1.5))
+    assert merged.tolist() == [upper]
+
+
 def test_a_child_in_front_of_an_adult_is_kept() -> None:
     adult = [500.0, 300.0, 600.0, 600.0]
     child = [520.0, 450.0, 580.0, 610.0]  # mostly inside the adult's box, but not sharing its top

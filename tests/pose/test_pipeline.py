@@ -24,7 +24,7 @@ from service.pose.movenet import (
     read_people,
 )
 from service.pose.pipeline import THUNDER_FROM_CROP_PX, TopDownPose, load_pose_estimator
-from service.pose.regions import OBSERVED_BUDGET_PX, Region, observed_plan, plan_cost
+from service.pose.regions import OBSERVED_BUDGET_PX, Region, observed_plan, plan_cost, sizes_from_people
 from service.pose.sessions import make_session, native_bf16
 from service.pose.types import DetectedPerson
 from service.settings import Settings
@@ -361,7 +361,8 @@ def test_a_cameras_earlier_people_size_its_next_frames_whole_search(
                 if person.body_xyxy is not None and person.body_xyxy[3] - person.body_xyxy[1] >= MIN_HEIGHT_PX:
                     best = max((iou(person.body_xyxy, b) for b in detections.boxes_xyxy_px), default=0.0)
                     found[sizing] += best >= 0.5
-        bands = observed_plan(seen, IMAGE_SIZE)
+        size_of = sizes_from_people(seen, IMAGE_SIZE)
+        bands = None if size_of is None else observed_plan(size_of, IMAGE_SIZE)
         assert bands and lightning.last_plan == lightning.plan(IMAGE_SIZE)[:1] + bands
         assert plan_cost(bands) <= OBSERVED_BUDGET_PX
     assert found["camera's people"] >= found["frame's people"] - 2

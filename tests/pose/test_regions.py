@@ -293,7 +293,9 @@ def test_an_observed_plan_searches_like_a_calibration_within_its_budget() -> Non
     cal = synthetic(R, 2700.0, 7.8)  # Town Centre's camera, about
     people = people_in_view(cal, R, (1920, 1080), np.random.default_rng(1))
     heights = people[:, 3] - people[:, 1]
-    plan = observed_plan(people[heights >= 100.0][:20, :4], (1920, 1080))  # what a first pass finds
+    size_of = sizes_from_people(people[heights >= 100.0][:20, :4], (1920, 1080))  # what a first pass finds
+    assert size_of is not None
+    plan = observed_plan(size_of, (1920, 1080))
     assert plan and plan_cost(plan) <= OBSERVED_BUDGET_PX
     findable = people[heights >= 1.2 * MIN_VISIBLE_PX]
     owners = np.array([region.owns(findable[:, :4]) for region in plan])
@@ -302,7 +304,6 @@ def test_an_observed_plan_searches_like_a_calibration_within_its_budget() -> Non
     farther = synthetic(R, 2000.0, 8.0)  # the same view, its people 50-220 px: more rows than the budget covers
     crowd = people_in_view(farther, R, (1920, 1080), np.random.default_rng(1))
     first_pass = crowd[crowd[:, 3] - crowd[:, 1] >= 100.0][:20, :4]
-    assert sizes_from_people(first_pass, (1920, 1080)) is not None
-    assert observed_plan(first_pass, (1920, 1080)) is None
-    assert sizes_from_people(first_pass, (1920, 1080)) is not None
-    assert observed_plan(first_pass, (1920, 1080)) is None
+    size_of = sizes_from_people(first_pass, (1920, 1080))
+    assert size_of is not None
+    assert observed_plan(size_of, (1920, 1080)) is None
