@@ -22,7 +22,7 @@ from typing import Any, cast
 
 import numpy as np
 import uuid6
-from sqlalchemy import Table, and_, bindparam, delete, insert, or_, select, update
+from sqlalchemy import Table, bindparam, delete, insert, select, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, make_transient_to_detached
 
@@ -390,23 +390,22 @@ def add_keypoint_frames(session: Session, frames: Sequence[PreparedKeypointFrame
 
 def _frames_by_client_ids(session: Session, frames: Sequence[NewKeypointFrame]) -> dict[tuple[str, str | None], Frame]:
     """Stored frames among the batch's client frame ids, by (camera id, client frame id): one query for the whole
-    batch, an OR of one index lookup per camera (SQLite scans the table for the row-value IN that would say it
-    more briefly)."""
-    wanted: dict[str, set[str]] = {}
-    for item in frames:
-        if item.client_frame_id is not None:
-            wanted.setdefault(item.camera.id, set()).add(item.client_frame_id)
-    if not wanted:
+    batch, of one shape whatever the batch, so it is compiled once (an OR of one IN per camera was compiled anew for
+    most batches: 300 against 85 us). The batch's cameras crossed with its client ids are looked up on the
+    (camera_id, client_frame_id) index: a superset of the pairs wanted, whose extra frames no lookup asks for (a
+    row-value IN would say it exactly, and SQLite answers it by scanning the table)."""
+    cameras = sorted({item.camera.id for item in frames if item.client_frame_id is not None})
+    if not cameras:
         return {}
-    stmt = select(Frame).where(
-        or_(
-            *(
-                and_(Frame.camera_id == camera_id, Frame.client_frame_id.in_(sorted(client_ids)))
-                for camera_id, client_ids in sorted(wanted.items())
-            )
-        )
-    )
-    return {(frame.camera_id, frame.client_frame_id): frame for frame in session.execute(stmt).scalars()}
+    client_ids = sorted({item.client_frame_id for item in frames if item.client_frame_id is not None})
+    stored = session.execute(_STORED_CLIENT_IDS, {"cameras": cameras, "client_ids": client_ids}).scalars()
+    return {(frame.camera_id, frame.client_frame_id): frame for frame in stored}
+
+
+_STORED_CLIENT_IDS = select(Frame).where(
+    Frame.camera_id.in_(bindparam("cameras", expanding=True)),
+    Frame.client_frame_id.in_(bindparam("client_ids", expanding=True)),
+)
 
 
 def _check_timestamp(timestamp: datetime) -> None:

@@ -47,6 +47,22 @@ def store(session: Session, frames: Sequence[NewKeypointFrame]) -> list[tuple[Fr
     return add_keypoint_frames(session, [prepare_keypoint_frame(item, received_at=received_at) for item in frames])
 
 
+def test_a_client_id_stored_on_one_camera_is_new_on_another_in_one_batch(factory: sessionmaker[Session]) -> None:
+    """The stored-id lookup crosses the batch's cameras with its client ids: cam-1's stored "a" must not make
+    cam-2's "a" a retry, nor cam-1's "b" one of cam-2's stored "b"."""
+    one, two = camera(factory, "cam-1"), camera(factory, "cam-2")
+    with factory() as session:
+        first = store(session, [frame(one, "a"), frame(two, "b")])
+        session.commit()
+    with factory() as session:
+        stored = store(session, [frame(two, "a"), frame(one, "b"), frame(one, "a")])
+        session.commit()
+    assert [created for _, created in stored] == [True, True, False]
+    assert stored[2][0].id == first[0][0].id
+    with factory() as session:
+        assert count(session, Frame) == 4
+
+
 def test_batch_stores_every_frame_and_counts_evidence(factory: sessionmaker[Session]) -> None:
     one, two = camera(factory, "cam-1"), camera(factory, "cam-2")
     with factory() as session:
