@@ -62,6 +62,15 @@ class PersonIn:
     calibration. Only posted keypoint frames carry one."""
 
 
+@dataclass(frozen=True)
+class CameraCounters:
+    """A camera's evidence counters as a write transaction left them: what decides whether a solve is due."""
+
+    epoch: int
+    usable_evidence_count: int
+    evidence_at_last_solve: int
+
+
 class StoredCentres(Protocol):
     """A stored person's centres: an Observation, or a light row from service.frames.repository.frames_points."""
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Collection
+from collections.abc import Collection, Mapping
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
@@ -25,7 +25,7 @@ from service.calibration import evidence
 from service.calibration.camera_model import model_record, problem_for, quality_record
 from service.calibration.repository import add_calibration, current_calibration
 from service.cameras.repository import CameraNotFoundError
-from service.domain import DONE, FAILED, GONE, SKIPPED, CalibrationValues
+from service.domain import DONE, FAILED, GONE, SKIPPED, CalibrationValues, CameraCounters
 from service.frames.repository import pending_frames
 from service.geometry import Calibration, CalibrationError, CalibrationProblem
 from service.geometry.evidence import EvidenceSolve, solve_evidence
@@ -168,7 +168,9 @@ class DueSolves:
     is kept until a solve, a reset or a move changes the camera's `evidence_at_last_solve` or epoch, and a camera
     is asked for once per such state. A lost ask, or a forced solve that changed the schedule without moving the
     counter, costs only time: the measuring job and the workers' recovery pass ask too. Called from one thread
-    (the frame writer's after-commit thread).
+    (the frame writer's after-commit thread). The batch's own transaction hands over the counters it left
+    (ingest.add_keypoint_frames), so for a batch whose cameras are all in it no statement runs (a session connects
+    only when one does) unless a camera's next target must be computed.
     """
 
     _COUNTERS = select(Camera.id, Camera.epoch, Camera.usable_evidence_count, Camera.evidence_at_last_solve).where(
@@ -180,25 +182,32 @@ class DueSolves:
         # camera -> ((epoch, evidence_at_last_solve), the evidence its next solve is due at, asked for already)
         self._schedule: dict[str, tuple[tuple[int, int], int, bool]] = {}
 
-    def __call__(self, camera_ids: Collection[str]) -> list[str]:
-        """Ask for the solves these cameras are due; returns the cameras asked for."""
+    def __call__(self, camera_ids: Collection[str], counters: Mapping[str, CameraCounters] | None = None) -> list[str]:
+        """Ask for the solves these cameras are due; returns the cameras asked for. `counters`: those the write
+        transaction left (the cameras not in it are read)."""
         if not camera_ids:
             return []
+        given = counters or {}
         due = []
         with self.read_sessions() as session:
-            for row in session.execute(self._COUNTERS, {"ids": sorted(camera_ids)}).all():
-                if not _may_be_due(row.usable_evidence_count, row.evidence_at_last_solve, self.settings):
+            state_of = {camera_id: given[camera_id] for camera_id in camera_ids if camera_id in given}
+            missing = sorted(set(camera_ids) - set(state_of))
+            if missing:
+                for row in session.connection().execute(self._COUNTERS, {"ids": missing}):
+                    state_of[row.id] = CameraCounters(row.epoch, row.usable_evidence_count, row.evidence_at_last_solve)
+            for camera_id, now in sorted(state_of.items()):
+                if not _may_be_due(now.usable_evidence_count, now.evidence_at_last_solve, self.settings):
                     continue
-                state = (row.epoch, row.evidence_at_last_solve)
-                known = self._schedule.get(row.id)
+                state = (now.epoch, now.evidence_at_last_solve)
+                known = self._schedule.get(camera_id)
                 if known is None or known[0] != state:
-                    camera = session.get(Camera, row.id)
+                    camera = session.get(Camera, camera_id)
                     if camera is None:
                         continue
                     known = (state, next_solve_at(session, camera, self.settings), False)
-                    self._schedule[row.id] = known
-                if not known[2] and row.usable_evidence_count >= known[1]:
-                    due.append(row.id)
+                    self._schedule[camera_id] = known
+                if not known[2] and now.usable_evidence_count >= known[1]:
+                    due.append(camera_id)
         for camera_id in due:
             self.dispatcher.calibration_requested(camera_id, False)
             state, target, _ = self._schedule[camera_id]

@@ -27,7 +27,7 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, make_transient_to_detached
 
 from service.cameras.repository import CameraNotFoundError, CameraResizedError, existing_camera
-from service.domain import PersonIn, Point
+from service.domain import CameraCounters, PersonIn, Point
 from service.frames.digests import keypoint_frame_digest
 from service.geometry.evidence import grid_cells
 from service.store.models import (
@@ -163,7 +163,9 @@ _COUNT_EVIDENCE = (
     .values(usable_evidence_count=_CAMERAS.c.usable_evidence_count + bindparam("usable"))
     .returning(_CAMERAS.c.epoch)
 )
-_EPOCHS = select(_CAMERAS.c.id, _CAMERAS.c.epoch).where(_CAMERAS.c.id.in_(bindparam("ids", expanding=True)))
+_COUNTERS = select(
+    _CAMERAS.c.id, _CAMERAS.c.epoch, _CAMERAS.c.usable_evidence_count, _CAMERAS.c.evidence_at_last_solve
+).where(_CAMERAS.c.id.in_(bindparam("ids", expanding=True)))
 
 
 def _set_epochs(rows: Sequence[dict[str, Any]], epochs: dict[str, int]) -> None:
@@ -338,9 +340,14 @@ def prepare_keypoint_frame(item: NewKeypointFrame, *, received_at: datetime) -> 
     return PreparedKeypointFrame(item, frame, _frame_row(frame), rows, usable)
 
 
-def add_keypoint_frames(session: Session, frames: Sequence[PreparedKeypointFrame]) -> list[tuple[Frame, bool]]:
+def add_keypoint_frames(
+    session: Session,
+    frames: Sequence[PreparedKeypointFrame],
+    counters: dict[str, CameraCounters] | None = None,
+) -> list[tuple[Frame, bool]]:
     """Store several prepared frames and their people with one statement per table; returns (frame, created) per
-    frame.
+    frame. `counters`, when given, receives the evidence counters of the cameras whose people were stored, as this
+    transaction leaves them (read with their epochs, so the writer's after-commit step needs no read of its own).
 
     The API's group commit (service.frames.writer) writes the frames that arrive while the previous batch
     is being written in one transaction, which costs a fraction of one transaction per frame. Retries are
@@ -379,9 +386,16 @@ def add_keypoint_frames(session: Session, frames: Sequence[PreparedKeypointFrame
         session.execute(insert(_FRAMES), frame_rows)
     if observation_rows:
         # After the counters' update, which holds the cameras' rows until commit: their epochs cannot change now.
-        epochs = session.execute(_EPOCHS, {"ids": sorted(usable)}).all()
-        _set_epochs(observation_rows, {camera_id: epoch for camera_id, epoch in epochs})
+        rows = session.execute(_COUNTERS, {"ids": sorted(usable)}).all()
+        _set_epochs(observation_rows, {row.id: row.epoch for row in rows})
         session.execute(insert(_OBSERVATIONS), observation_rows)
+        if counters is not None:
+            counters.update(
+                {
+                    row.id: CameraCounters(row.epoch, row.usable_evidence_count, row.evidence_at_last_solve)
+                    for row in rows
+                }
+            )
     for frame, created in results:
         if created:
             _attach_inserted(session, frame)

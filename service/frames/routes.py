@@ -6,7 +6,7 @@ import asyncio
 import logging
 import re
 import uuid
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, Path, Query, Request, Response, status
@@ -19,6 +19,7 @@ from service.calibration.service import DueSolves
 from service.cameras.repository import CameraNotFoundError, CameraResizedError
 from service.cameras.service import camera_not_found, require_camera
 from service.dispatch import UNAVAILABLE_ERRORS, Dispatcher
+from service.domain import CameraCounters
 from service.frames import ingest, listing, repository
 from service.frames.digests import image_frame_digest
 from service.frames.images import ImageError, ImageTooLargeError, decode
@@ -147,12 +148,16 @@ async def post_keypoints(
 
 
 def dispatch_stored(
-    dispatcher: Dispatcher, due_solves: DueSolves | None, stored: Sequence[tuple[Frame, bool]]
+    dispatcher: Dispatcher,
+    due_solves: DueSolves | None,
+    stored: Sequence[tuple[Frame, bool]],
+    counters: Mapping[str, CameraCounters] | None = None,
 ) -> list[BaseException | None]:
     """The frame writer's after-commit step: have the batch's new (or still pending) frames measured, with one
     call to the queue for the whole batch (one frame named per camera), and ask for the solves the new evidence
-    made due. If the queue is unreachable, each of those frames' posts is answered 503 (the frames are stored; the
-    workers find them on start); a solve that could not be asked for is asked for again by the next batch."""
+    made due (`counters`: the cameras' counters the batch's transaction left). If the queue is unreachable, each of
+    those frames' posts is answered 503 (the frames are stored; the workers find them on start); a solve that could
+    not be asked for is asked for again by the next batch."""
     waiting = [created or frame.status == "pending" for frame, created in stored]
     first_per_camera: dict[str, uuid.UUID] = {}
     for (frame, _), wanted in zip(stored, waiting, strict=True):
@@ -167,7 +172,7 @@ def dispatch_stored(
     new_evidence = {frame.camera_id for frame, created in stored if created}
     if due_solves is not None and new_evidence and failure is None:
         try:
-            due_solves(new_evidence)
+            due_solves(new_evidence, counters or {})
         except (*UNAVAILABLE_ERRORS, SQLAlchemyError) as exc:
             log.warning("could not ask for the solves of %d cameras: %s", len(new_evidence), exc)
     return [failure if wanted else None for wanted in waiting]

@@ -26,7 +26,7 @@ from __future__ import annotations
 import logging
 import threading
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import cast
@@ -35,6 +35,7 @@ from sqlalchemy.exc import SQLAlchemyError
 from sqlalchemy.orm import Session, sessionmaker
 
 from service.cameras.repository import CameraNotFoundError, CameraResizedError
+from service.domain import CameraCounters
 from service.frames.ingest import (
     FramesRefusedError,
     NewKeypointFrame,
@@ -75,8 +76,10 @@ class StoredFrame:
     after_commit_error: BaseException | None = None
 
 
-AfterCommit = Callable[[Sequence[tuple[Frame, bool]]], Sequence[BaseException | None]]
-"""Called with a batch's stored frames, after its commit; returns one error (or None) per frame."""
+AfterCommit = Callable[[Sequence[tuple[Frame, bool]], Mapping[str, CameraCounters]], Sequence[BaseException | None]]
+"""Called with a batch's stored frames and the evidence counters its transaction left on the cameras whose people it
+stored (ingest.add_keypoint_frames; frames stored one at a time leave none), after its commit; returns one error (or
+None) per frame."""
 
 
 class FrameWriter:
@@ -147,27 +150,32 @@ class FrameWriter:
         return batch
 
     def _write(self, batch: list[tuple[NewKeypointFrame, Future[StoredFrame]]]) -> None:
+        counters: dict[str, CameraCounters] = {}
         try:
-            answers = self.store_batch([frame for frame, _ in batch])
+            answers = self.store_batch([frame for frame, _ in batch], counters)
         except BaseException as exc:
             _fail(batch, exc)
             if not isinstance(exc, Exception):
                 raise
             return
         if self.after_commit is None:
-            self._answer(batch, answers)
+            self._answer(batch, answers, counters)
         else:
-            self._after.submit(self._answer, batch, answers)
+            self._after.submit(self._answer, batch, answers, counters)
 
     def _answer(
-        self, batch: list[tuple[NewKeypointFrame, Future[StoredFrame]]], answers: list[tuple[Frame, bool] | Exception]
+        self,
+        batch: list[tuple[NewKeypointFrame, Future[StoredFrame]]],
+        answers: list[tuple[Frame, bool] | Exception],
+        counters: Mapping[str, CameraCounters],
     ) -> None:
         """Answer every frame of the batch, whatever happens: a waiting request must never wait for ever, and the
         threads must outlive any one batch."""
         try:
             stored = [answer for answer in answers if not isinstance(answer, Exception)]
             no_errors: Sequence[BaseException | None] = [None] * len(stored)
-            errors = iter(self.after_commit(stored) if self.after_commit is not None and stored else no_errors)
+            after = self.after_commit
+            errors = iter(after(stored, counters) if after is not None and stored else no_errors)
             for (_, future), answer in zip(batch, answers, strict=True):
                 if isinstance(answer, Exception):
                     future.set_exception(answer)
@@ -178,9 +186,12 @@ class FrameWriter:
             if not isinstance(exc, Exception):
                 raise
 
-    def store_batch(self, frames: list[NewKeypointFrame]) -> list[tuple[Frame, bool] | Exception]:
+    def store_batch(
+        self, frames: list[NewKeypointFrame], counters: dict[str, CameraCounters] | None = None
+    ) -> list[tuple[Frame, bool] | Exception]:
         """Store frames in one transaction, without those the store refuses, or one at a time if one of them spoils
-        the batch; one answer each (a (frame, created) pair, or that frame's own error).
+        the batch; one answer each (a (frame, created) pair, or that frame's own error). `counters` receives the
+        evidence counters the batch's transaction left (add_keypoint_frames).
 
         Raises only what fails every frame alike (the database unavailable).
         """
@@ -197,7 +208,7 @@ class FrameWriter:
         while waiting:
             try:
                 with self.session_factory() as session:
-                    stored = add_keypoint_frames(session, [prepared[i] for i in waiting])
+                    stored = add_keypoint_frames(session, [prepared[i] for i in waiting], counters)
                     session.commit()
             except FramesRefusedError as refused:
                 for position, error in refused.errors.items():
@@ -207,6 +218,8 @@ class FrameWriter:
             except Exception as exc:
                 if _unavailable(exc):
                     raise
+                if counters is not None:
+                    counters.clear()  # read in the transaction that rolled back
                 for i in waiting:
                     answers[i] = self._store_alone(frames[i])
                 break

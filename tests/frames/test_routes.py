@@ -7,12 +7,13 @@ import uuid
 import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
-from sqlalchemy import func, select
+from sqlalchemy import event, func, select
 
 from service.calibration.repository import add_calibration
+from service.calibration.service import DueSolves
 from service.cameras.repository import get_camera
 from service.dispatch import DispatchUnavailableError
-from service.domain import CalibrationValues
+from service.domain import CalibrationValues, CameraCounters
 from service.frames.repository import get_frame, pending_frames
 from service.frames.routes import dispatch_stored
 from service.frames.schemas import FrameOut
@@ -124,6 +125,27 @@ def test_the_frame_that_makes_a_solve_due_asks_for_it_once(
         session.commit()
     assert post(7).status_code == 202 and dispatcher.calibrations == [(camera, False)]  # 15 < 2 x 8
     assert post(1).status_code == 202 and dispatcher.calibrations == [(camera, False)] * 2  # 16: due again
+
+
+@pytest.mark.both_backends
+def test_the_due_check_reads_no_counters_the_batch_handed_over(camera: str, app: FastAPI) -> None:
+    """The write batch hands over the counters its transaction left (ingest.add_keypoint_frames): for those cameras
+    the after-commit check runs no statement once their next target is known, and reads only what it was not given."""
+    statements: list[str] = []
+    engine = app.state.engine
+    # (conn, cursor, statement, ...): the queries, not SQLite's BEGIN.
+    listener = lambda *args: statements.append(args[2]) if args[2].startswith("SELECT") else None  # noqa: E731
+    due = DueSolves(app.state.settings, app.state.read_session_factory, recording := RecordingDispatcher())
+    event.listen(engine, "before_cursor_execute", listener)
+    try:
+        assert due([camera], {camera: CameraCounters(1, MIN_PEOPLE, 0)}) == [camera]  # its first target: read
+        assert statements and recording.calibrations == [(camera, False)]
+        statements.clear()
+        assert due([camera], {camera: CameraCounters(1, MIN_PEOPLE + 1, 0)}) == []  # asked already
+        assert statements == []
+        assert due([camera]) == [] and len(statements) == 1  # not handed over: the counters are read
+    finally:
+        event.remove(engine, "before_cursor_execute", listener)
 
 
 def test_a_solve_the_queue_cannot_take_costs_the_frame_nothing(

@@ -5,7 +5,7 @@ from __future__ import annotations
 import threading
 import uuid
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from datetime import datetime
 
@@ -15,6 +15,7 @@ from sqlalchemy.exc import OperationalError
 from sqlalchemy.orm import Session, sessionmaker
 
 from service.cameras.repository import CameraNotFoundError
+from service.domain import CameraCounters
 from service.frames import writer as frame_writer
 from service.frames.ingest import NewKeypointFrame, PreparedKeypointFrame, add_keypoint_frames, prepare_keypoint_frame
 from service.frames.repository import frame_observations
@@ -102,9 +103,11 @@ def test_concurrent_posts_are_batched_and_each_answered(
     writer = FrameWriter(factory)
     batches: list[int] = []
 
-    def counting(session: Session, frames: list[PreparedKeypointFrame]) -> list[tuple[Frame, bool]]:
+    def counting(
+        session: Session, frames: list[PreparedKeypointFrame], counters: dict[str, CameraCounters] | None = None
+    ) -> list[tuple[Frame, bool]]:
         batches.append(len(frames))
-        return add_keypoint_frames(session, frames)
+        return add_keypoint_frames(session, frames, counters)
 
     monkeypatch.setattr(frame_writer, "add_keypoint_frames", counting)
     # Client ids repeat (two retries of each frame), so some answers come from other threads' batches.
@@ -221,10 +224,14 @@ def test_after_commit_sees_each_batch_once_and_its_errors_reach_their_frames(fac
         session.execute(delete(Camera).where(Camera.id == "gone"))
         session.commit()
     seen: list[list[str | None]] = []
+    handed: list[Mapping[str, CameraCounters]] = []
     problem = ConnectionError("queue unreachable")
 
-    def after_commit(stored: Sequence[tuple[Frame, bool]]) -> list[BaseException | None]:
+    def after_commit(
+        stored: Sequence[tuple[Frame, bool]], counters: Mapping[str, CameraCounters]
+    ) -> list[BaseException | None]:
         seen.append([f.client_frame_id for f, _ in stored])
+        handed.append(counters)
         return [problem if f.client_frame_id == "k-2" else None for f, _ in stored]
 
     writer = FrameWriter(factory, after_commit=after_commit)
@@ -236,13 +243,19 @@ def test_after_commit_sees_each_batch_once_and_its_errors_reach_their_frames(fac
     assert isinstance(answers[1], CameraNotFoundError)
     assert answers[0].after_commit_error is None and answers[2].after_commit_error is problem  # type: ignore[union-attr]
     assert answers[2].created  # type: ignore[union-attr]
+    # The counters the batch's transaction left on the camera whose people it stored: the store's, after the commit.
+    with factory() as session:
+        stored_camera = session.get(Camera, "kept")
+        assert stored_camera is not None
+        assert handed == [{"kept": CameraCounters(stored_camera.epoch, stored_camera.usable_evidence_count, 0)}]
+        assert stored_camera.usable_evidence_count == 4
 
 
 def test_the_writer_survives_a_failing_after_commit_and_close_drains_the_queue(factory: sessionmaker[Session]) -> None:
     cam = camera(factory)
     calls = 0
 
-    def after_commit(stored: Sequence[tuple[Frame, bool]]) -> list[BaseException | None]:
+    def after_commit(stored: Sequence[tuple[Frame, bool]], _counters: object) -> list[BaseException | None]:
         nonlocal calls
         calls += 1
         if calls == 1:
