@@ -181,7 +181,8 @@ def install_handlers(app: FastAPI) -> None:
         if not is_database_unavailable(exc):
             raise exc
         log.warning("database unavailable on %s %s: %s", request.method, request.url.path, exc)
-        detail = f"The database is unavailable ({type(exc.orig or exc).__name__}); retry the request later."
+        cause = getattr(exc, "orig", None) or exc  # the driver's error; the pool's own timeout has none
+        detail = f"The database is unavailable ({type(cause).__name__}); retry the request later."
         return problem_response(503, "database-unavailable", detail, request.url.path, headers=UNAVAILABLE_HEADERS)
 
     @app.exception_handler(Exception)
