@@ -22,6 +22,12 @@ from sqlalchemy import create_engine, text
 from tests.faults.harness import Client, SimulatedCamera
 
 POLL_S = 0.1
+# Frames a camera the fleet posts to should have people for (SimulatedCamera.draw(frames=...)). The fleet posts for
+# as long as a fault takes, as fast as the API answers: up to ~410 frames a camera in one test on the 2-core
+# machine, more with a faster API. A camera that runs out stops the fleet (harness.SceneExhaustedError) rather than
+# post frames with nobody in them, which are measured with no violation: the Redis-restart test, which counts one
+# webhook event per measured frame, once read those as events lost. Ten times the most seen (~1 s to draw a camera).
+FLEET_FRAMES = 4000
 
 
 @dataclass
@@ -53,6 +59,7 @@ class Fleet:
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._turn = 0
+        self._errors: list[BaseException] = []
 
     def _next(self) -> tuple[SimulatedCamera, dict[str, Any]]:
         with self._lock:
@@ -61,6 +68,16 @@ class Fleet:
             return camera, camera.next_frame()
 
     def _run(self) -> None:
+        """One client; an error of its own (a camera out of people, an answer it cannot read) stops every client
+        and is raised by `stop()`, so a test never goes on to count rows after its clients went wrong."""
+        try:
+            self._post_until_stopped()
+        except BaseException as exc:
+            with self._lock:
+                self._errors.append(exc)
+            self._stop.set()
+
+    def _post_until_stopped(self) -> None:
         while not self._stop.is_set():
             camera, body = self._next()
             post = Post(camera.camera_id, body["frame_id"], len(body["people"]))
@@ -85,10 +102,13 @@ class Fleet:
         return self
 
     def stop(self, timeout_s: float = 120.0) -> None:
+        """Stop the clients once each has its frame accepted; raises the first error a client met."""
         self._stop.set()
         for thread in self._threads:
             thread.join(timeout_s)
             assert not thread.is_alive(), "a client never got its frame accepted"
+        if self._errors:
+            raise self._errors[0]
 
     # ----------------------------------------------------------------------------------------- what happened
 

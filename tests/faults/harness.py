@@ -132,6 +132,16 @@ def _answer(status: int, raw_headers: Any, content: bytes) -> Answer:
 # --------------------------------------------------------------------------------------------------- cameras
 
 
+class SceneExhaustedError(RuntimeError):
+    """A simulated camera was asked for a frame past the last one its scene has people for.
+
+    Handing out an empty frame instead would post a frame with nobody in it: measured `done` with no pair and no
+    violation, so a test that expects one webhook event per measured frame would read it as an event lost. That is
+    how the Redis-restart fault test once failed (400 events for 411 measured frames: the fleet had posted past the
+    400 frames of its alarm camera's scene), and only on runs fast enough to post that many.
+    """
+
+
 @dataclass
 class SimulatedCamera:
     """A camera's truth and a supply of people to post, one frame at a time."""
@@ -151,9 +161,21 @@ class SimulatedCamera:
         width, height = self.scene.image_size
         return {"image_width_px": width, "image_height_px": height, "person_height_m": 1.7}
 
+    @property
+    def frames(self) -> int:
+        """How many frames the scene has people for."""
+        return len(self.scene.tops_px) // self.people_per_frame
+
     def next_frame(self) -> dict[str, Any]:
-        """The next frame's body, with a client frame id (so a retry is the same frame)."""
+        """The next frame's body, with a client frame id (so a retry is the same frame); SceneExhaustedError once
+        the scene's people are all posted (never a frame with fewer people, which a test would count as measured
+        without the violations it expects)."""
         k = self.posted
+        if k >= self.frames:
+            raise SceneExhaustedError(
+                f"camera {self.camera_id} has posted all {self.frames} frames its scene has people for: draw it "
+                "with more frames"
+            )
         people = slice(k * self.people_per_frame, (k + 1) * self.people_per_frame)
         self.posted += 1
         frame_id = f"{self.camera_id}-{k}"

@@ -28,7 +28,7 @@ import pytest
 import redis
 from sqlalchemy import create_engine, text
 
-from tests.faults.fleet import Fleet, assert_nothing_lost_or_doubled, posting, sql_counts
+from tests.faults.fleet import FLEET_FRAMES, Fleet, assert_nothing_lost_or_doubled, posting, sql_counts
 from tests.faults.harness import (
     Client,
     SimulatedCamera,
@@ -64,7 +64,7 @@ def stack() -> Iterator[Stack]:
 
 def calibrated(client: Client, camera_id: str, seed: int, **settings: Any) -> SimulatedCamera:
     """A camera calibrated by a forced solve on five frames, ready to measure what comes next."""
-    camera = SimulatedCamera.draw(camera_id, frames=400, people_per_frame=6, seed=seed)
+    camera = SimulatedCamera.draw(camera_id, frames=FLEET_FRAMES, people_per_frame=6, seed=seed)
     answer = client.request("PUT", f"/v1/cameras/{camera_id}", {**camera.settings(), **settings})
     assert answer.status == 201, answer
     urls = post_frames(client, camera, 5)

@@ -24,7 +24,7 @@ import pytest
 import redis
 
 from service.embedded_redis import EMBEDDED_DIR_NAME, EMBEDDED_PID_FILE, embedded_socket_path
-from tests.faults.fleet import Fleet, assert_nothing_lost_or_doubled, posting, sql_counts
+from tests.faults.fleet import FLEET_FRAMES, Fleet, assert_nothing_lost_or_doubled, posting, sql_counts
 from tests.faults.harness import Client, SimulatedCamera, create_camera, kill_worker_running, post_frames, wait_until
 from tests.support.serving import Served, clean_environment, serve
 
@@ -55,7 +55,7 @@ def database_url(data_dir: Path) -> str:
 
 
 def calibrated(client: Client, camera_id: str, seed: int) -> SimulatedCamera:
-    camera = SimulatedCamera.draw(camera_id, frames=600, people_per_frame=6, seed=seed)
+    camera = SimulatedCamera.draw(camera_id, frames=FLEET_FRAMES, people_per_frame=6, seed=seed)
     create_camera(client, camera)
     urls = post_frames(client, camera, 5)
     assert client.request("POST", f"/v1/cameras/{camera_id}/calibration").status == 202

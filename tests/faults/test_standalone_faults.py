@@ -45,8 +45,9 @@ def stack() -> Iterator[Stack]:
 
 
 def big_camera(client: Client, camera_id: str) -> tuple[SimulatedCamera, list[str]]:
-    """120 frames of 100 people, waiting for a solve that takes seconds (12000 people)."""
-    camera = SimulatedCamera.draw(camera_id, frames=120, people_per_frame=100, seed=11)
+    """120 frames of 100 people, waiting for a solve that takes seconds (12000 people); the scene has people for one
+    frame more, which a test may post later."""
+    camera = SimulatedCamera.draw(camera_id, frames=121, people_per_frame=100, seed=11)
     create_camera(client, camera)
     return camera, post_frames(client, camera, 120)
 
