@@ -163,6 +163,8 @@ _COUNT_EVIDENCE = (
     .values(usable_evidence_count=_CAMERAS.c.usable_evidence_count + bindparam("usable"))
     .returning(_CAMERAS.c.epoch)
 )
+_INSERT_FRAMES = insert(_FRAMES)
+_INSERT_OBSERVATIONS = insert(_OBSERVATIONS)
 _COUNTERS = select(
     _CAMERAS.c.id, _CAMERAS.c.epoch, _CAMERAS.c.usable_evidence_count, _CAMERAS.c.evidence_at_last_solve
 ).where(_CAMERAS.c.id.in_(bindparam("ids", expanding=True)))
@@ -238,7 +240,7 @@ def _count_evidence_where_unchanged(
         {"camera": camera_id, "width": width, "height": height, "usable": usable.get(camera_id, 0)}
         for camera_id, width, height in expected
     ]
-    if session.execute(_COUNT_EVIDENCE_WHERE_UNCHANGED, rows).rowcount == len(rows):  # type: ignore[attr-defined]
+    if session.connection().execute(_COUNT_EVIDENCE_WHERE_UNCHANGED, rows).rowcount == len(rows):
         return {}
     current = _current_sizes(session, {camera.id for camera in checked.values()})
     return {i: error for i, camera in checked.items() if (error := _size_error(camera, current)) is not None}
@@ -382,13 +384,16 @@ def add_keypoint_frames(
     refused = _count_evidence_where_unchanged(session, checked, usable)
     if refused:
         raise FramesRefusedError(refused)
+    # Core statements on the session's connection: the same transaction, without the ORM's execution path (~40 us
+    # a statement, four a batch).
+    connection = session.connection()
     if frame_rows:
-        session.execute(insert(_FRAMES), frame_rows)
+        connection.execute(_INSERT_FRAMES, frame_rows)
     if observation_rows:
         # After the counters' update, which holds the cameras' rows until commit: their epochs cannot change now.
-        rows = session.execute(_COUNTERS, {"ids": sorted(usable)}).all()
+        rows = connection.execute(_COUNTERS, {"ids": sorted(usable)}).all()
         _set_epochs(observation_rows, {row.id: row.epoch for row in rows})
-        session.execute(insert(_OBSERVATIONS), observation_rows)
+        connection.execute(_INSERT_OBSERVATIONS, observation_rows)
         if counters is not None:
             counters.update(
                 {
@@ -412,13 +417,15 @@ def _frames_by_client_ids(session: Session, frames: Sequence[NewKeypointFrame]) 
     if not cameras:
         return {}
     client_ids = sorted({item.client_frame_id for item in frames if item.client_frame_id is not None})
-    stored = session.execute(_STORED_CLIENT_IDS, {"cameras": cameras, "client_ids": client_ids}).scalars()
-    return {(frame.camera_id, frame.client_frame_id): frame for frame in stored}
+    stored = session.connection().execute(_STORED_CLIENT_IDS, {"cameras": cameras, "client_ids": client_ids}).all()
+    # A stored id is a retry, rare: its frame is loaded then (gone since, it is new again).
+    frames_by_key = {(row.camera_id, row.client_frame_id): session.get(Frame, row.id) for row in stored}
+    return {key: frame for key, frame in frames_by_key.items() if frame is not None}
 
 
-_STORED_CLIENT_IDS = select(Frame).where(
-    Frame.camera_id.in_(bindparam("cameras", expanding=True)),
-    Frame.client_frame_id.in_(bindparam("client_ids", expanding=True)),
+_STORED_CLIENT_IDS = select(_FRAMES.c.id, _FRAMES.c.camera_id, _FRAMES.c.client_frame_id).where(
+    _FRAMES.c.camera_id.in_(bindparam("cameras", expanding=True)),
+    _FRAMES.c.client_frame_id.in_(bindparam("client_ids", expanding=True)),
 )
 
 
