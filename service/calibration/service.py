@@ -18,13 +18,13 @@ from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from sqlalchemy import bindparam, select
+from sqlalchemy import select
 from sqlalchemy.orm import Session, sessionmaker
 
 from service.calibration import evidence
 from service.calibration.camera_model import model_record, problem_for, quality_record
 from service.calibration.repository import add_calibration, current_calibration
-from service.cameras.repository import CameraNotFoundError
+from service.cameras.repository import CameraNotFoundError, camera_counters
 from service.domain import DONE, FAILED, GONE, SKIPPED, CalibrationValues, CameraCounters
 from service.frames.repository import pending_frames
 from service.geometry import Calibration, CalibrationError, CalibrationProblem
@@ -173,10 +173,6 @@ class DueSolves:
     only when one does) unless a camera's next target must be computed.
     """
 
-    _COUNTERS = select(Camera.id, Camera.epoch, Camera.usable_evidence_count, Camera.evidence_at_last_solve).where(
-        Camera.id.in_(bindparam("ids", expanding=True))
-    )
-
     def __init__(self, settings: Settings, read_sessions: sessionmaker[Session], dispatcher: Dispatcher) -> None:
         self.settings, self.read_sessions, self.dispatcher = settings, read_sessions, dispatcher
         # camera -> ((epoch, evidence_at_last_solve), the evidence its next solve is due at, asked for already)
@@ -191,10 +187,9 @@ class DueSolves:
         due = []
         with self.read_sessions() as session:
             state_of = {camera_id: given[camera_id] for camera_id in camera_ids if camera_id in given}
-            missing = sorted(set(camera_ids) - set(state_of))
+            missing = set(camera_ids) - set(state_of)
             if missing:
-                for row in session.connection().execute(self._COUNTERS, {"ids": missing}):
-                    state_of[row.id] = CameraCounters(row.epoch, row.usable_evidence_count, row.evidence_at_last_solve)
+                state_of.update(camera_counters(session.connection(), missing))
             for camera_id, now in sorted(state_of.items()):
                 if not _may_be_due(now.usable_evidence_count, now.evidence_at_last_solve, self.settings):
                     continue

@@ -12,10 +12,12 @@ from collections.abc import Collection
 from datetime import datetime
 from typing import Any
 
-from sqlalchemy import delete, select
+from sqlalchemy import bindparam, delete, select
+from sqlalchemy.engine import Connection
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
+from service.domain import CameraCounters
 from service.store.models import DEFAULT_DISTANCE_THRESHOLD_M, Camera, utc_now
 
 # The camera model the installer may know (issue 16), each nullable.
@@ -41,6 +43,18 @@ class CameraResizedError(Exception):
         super().__init__(f"camera {camera_id!r} is now {size_px[0]}x{size_px[1]} px")
         self.camera_id = camera_id
         self.size_px = size_px
+
+
+_COUNTERS = select(Camera.id, Camera.epoch, Camera.usable_evidence_count, Camera.evidence_at_last_solve).where(
+    Camera.id.in_(bindparam("ids", expanding=True))
+)
+
+
+def camera_counters(connection: Connection, camera_ids: Collection[str]) -> dict[str, CameraCounters]:
+    """The evidence counters of these cameras (the ones that exist), in one Core statement on the connection: the
+    write batch reads them in its transaction, the after-commit due-solve check for cameras it was not handed."""
+    rows = connection.execute(_COUNTERS, {"ids": sorted(camera_ids)})
+    return {row.id: CameraCounters(row.epoch, row.usable_evidence_count, row.evidence_at_last_solve) for row in rows}
 
 
 def existing_camera(session: Session, camera_id: str, *, for_update: bool = False) -> Camera:

@@ -26,7 +26,7 @@ from sqlalchemy import Table, bindparam, delete, insert, select, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, make_transient_to_detached
 
-from service.cameras.repository import CameraNotFoundError, CameraResizedError, existing_camera
+from service.cameras.repository import CameraNotFoundError, CameraResizedError, camera_counters, existing_camera
 from service.domain import CameraCounters, PersonIn, Point
 from service.frames.digests import keypoint_frame_digest
 from service.geometry.evidence import grid_cells
@@ -165,9 +165,6 @@ _COUNT_EVIDENCE = (
 )
 _INSERT_FRAMES = insert(_FRAMES)
 _INSERT_OBSERVATIONS = insert(_OBSERVATIONS)
-_COUNTERS = select(
-    _CAMERAS.c.id, _CAMERAS.c.epoch, _CAMERAS.c.usable_evidence_count, _CAMERAS.c.evidence_at_last_solve
-).where(_CAMERAS.c.id.in_(bindparam("ids", expanding=True)))
 
 
 def _set_epochs(rows: Sequence[dict[str, Any]], epochs: dict[str, int]) -> None:
@@ -391,16 +388,11 @@ def add_keypoint_frames(
         connection.execute(_INSERT_FRAMES, frame_rows)
     if observation_rows:
         # After the counters' update, which holds the cameras' rows until commit: their epochs cannot change now.
-        rows = connection.execute(_COUNTERS, {"ids": sorted(usable)}).all()
-        _set_epochs(observation_rows, {row.id: row.epoch for row in rows})
+        now = camera_counters(connection, usable)
+        _set_epochs(observation_rows, {camera_id: state.epoch for camera_id, state in now.items()})
         connection.execute(_INSERT_OBSERVATIONS, observation_rows)
         if counters is not None:
-            counters.update(
-                {
-                    row.id: CameraCounters(row.epoch, row.usable_evidence_count, row.evidence_at_last_solve)
-                    for row in rows
-                }
-            )
+            counters.update(now)
     for frame, created in results:
         if created:
             _attach_inserted(session, frame)

@@ -172,7 +172,7 @@ def dispatch_stored(
     new_evidence = {frame.camera_id for frame, created in stored if created}
     if due_solves is not None and new_evidence and failure is None:
         try:
-            due_solves(new_evidence, counters or {})
+            due_solves(new_evidence, counters)
         except (*UNAVAILABLE_ERRORS, SQLAlchemyError) as exc:
             log.warning("could not ask for the solves of %d cameras: %s", len(new_evidence), exc)
     return [failure if wanted else None for wanted in waiting]

@@ -106,7 +106,8 @@ the sizes are a plane through one frame's people, not a calibration. On the Town
 fully in view) the bands found 192, 191, 195 and 193 of them at 300 000, 375 000, 450 000 and 600 000 (the fixed
 passes and their second look 194 with 1 440 000): the same within the plan-to-plan noise of about two people. At
 450 000 a band of frame 12 boxed two people at once (the man behind the sign board and the man above him) and the
-merge kept that box over the upper man's own (tests/pose/test_occlusion_recall.py); at 600 000 it does not."""
+merge kept that box over the upper man's own (tests/pose/test_occlusion_recall.py); at 600 000 it did not, and since
+merge.py's rule 4 (a box too tall to be one person is nobody's whole body) neither does 450 000."""
 
 
 @dataclass(frozen=True)
