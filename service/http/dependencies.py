@@ -7,8 +7,9 @@ import logging
 from collections.abc import AsyncIterator, Callable
 from typing import Annotated, Any
 
+import anyio
+import anyio.to_thread
 from fastapi import Depends, Path, Request
-from fastapi.concurrency import run_in_threadpool
 from sqlalchemy.orm import Session
 
 from service.dispatch import UNAVAILABLE_ERRORS, Dispatcher
@@ -57,8 +58,12 @@ async def get_read_session(request: Request) -> AsyncIterator[Session]:
 async def _close(session: Session) -> None:
     if session.get_bind().dialect.name == "sqlite":
         session.close()
-    else:
-        await run_in_threadpool(session.close)
+        return
+    # As FastAPI closes its own thread-run dependencies: shielded (a cancelled request still hands its connection
+    # back) and outside the request threads' limit (requests waiting in every worker thread for a pooled connection
+    # must not keep the close that frees one from running).
+    with anyio.CancelScope(shield=True):
+        await anyio.to_thread.run_sync(session.close, limiter=anyio.CapacityLimiter(1))
 
 
 def get_settings(request: Request) -> Settings:
