@@ -107,6 +107,16 @@ class SceneConfig:
         )
         return replace(base, **overrides)  # type: ignore[arg-type]
 
+    @classmethod
+    def wide_angle(cls, **overrides: object) -> SceneConfig:
+        """The realistic preset through an indoor wide-angle lens: 60-90 deg vertically, a barrel lens moving the
+        image corner in by 3-15 % of its radius (rectilinear wide lenses bend more: service.geometry.problem), the
+        camera 2.5-6 m up over people within 20 m."""
+        base = cls.realistic(
+            vfov_deg=(60.0, 90.0), distortion_corner=(0.03, 0.15), camera_height_m=(2.5, 6.0), max_range_m=20.0
+        )
+        return replace(base, **overrides)  # type: ignore[arg-type]
+
 
 @dataclass(frozen=True)
 class Scene:

@@ -190,14 +190,17 @@ def _lens_focal_px(
     return focal
 
 
-def _priors(problem: CalibrationProblem, frame: ImageFrame, focal_known: bool, lens_prior: bool) -> Priors:
+def _priors(
+    problem: CalibrationProblem, frame: ImageFrame, focal_n: tuple[float, float], focal_known: bool, lens_prior: bool
+) -> Priors:
     h_px = float(problem.image_size_px[1])
     pp_std = problem.principal_point_std * h_px / frame.scale_px
     camera_height = None
     if problem.camera_height_m is not None:
         camera_height = (problem.camera_height_m - problem.ankle_height_m, problem.camera_height_std_m)
     corner_n = 0.5 * frame.diagonal_px / frame.scale_px
-    lens_std = problem.lens_corner_std / corner_n**2  # division model: the corner moves by about k r^3
+    spread = problem.lens_corner_spread(corner_n / float(np.sqrt(focal_n[0] * focal_n[1])))
+    lens_std = spread / corner_n**2  # division model: the corner moves by about k r^3
     return Priors(
         principal_point_n=None if problem.principal_point_px is not None or pp_std == 0 else pp_std,
         distortion_k=None if (problem.lens is not None or lens_std == 0 or not lens_prior) else lens_std,
@@ -333,7 +336,7 @@ def _posterior(
     )
     if not optimise:
         noise, lean = NoiseModel(noise.sigma_n, 0.0), 0.0
-    priors = replace(_priors(problem, stage.frame, focal_n is not None, options.distortion), lean_rad=lean)
+    priors = replace(_priors(problem, stage.frame, sol.focal_n, focal_n is not None, options.distortion), lean_rad=lean)
     layout = Layout.build(problem.equal_focal, focal_n, priors, stage.k != 0.0)
     _, _, heights = place_people(tops_n, bottoms_n, sol.focal_n, sol.normal, sol.rho_m, problem.height_m)
     # The latent ankles live in measured (distorted) coordinates: the model undistorts them itself.

@@ -24,6 +24,13 @@ where the people determine it and otherwise carried as a prior whose spread reac
   size, so a radial distortion that moves the image corner by less than ~6 % of its radius bends the
   segments less than that noise (on the realistic simulator the evidence test rarely fires below it). It is
   carried as a 3 % (1-sigma) corner shift; larger lenses are detected and estimated (service.geometry.distortion).
+  Wider than a 35 deg half-diagonal (tan^2 > LENS_WIDE_TAN2 = 0.5, a 38 deg vertical field of view at 16:9) the spread
+  grows with tan^2 of the half-diagonal field of view, as a lens design's corner shift does: 6 % at tan^2 = 1,
+  9 % at 1.5. Real wide lenses bend far more than 3 % (datasheets: an M12 3.9 mm lens on a 1/2.7" sensor, 104
+  deg diagonal, -34 % optical distortion, 0.47 tan^2; a 5-100 mm zoom on 1/2.8" at its wide end, 66.5 deg,
+  -9.7 %, 0.27 tan^2; +2.1 % at 100 mm), and on wide views (60-90 deg vertically) the evidence test misses
+  most 3-15 % corner shifts: held at 3 %, f, the normal and the camera height were within 2 sigma on 87, 82 and
+  91 % of such simulated cameras; with the wider spread 92, 91 and 98 % (docs/benchmarks/camera-model.md).
 """
 
 from __future__ import annotations
@@ -41,6 +48,7 @@ ASPECT_STD = 0.01
 MEAN_HEIGHT_STD_FRACTION = 0.04
 KEYPOINT_BIAS_STD_FRACTION = 0.002
 LENS_CORNER_STD_FRACTION = 0.03
+LENS_WIDE_TAN2 = 0.5
 
 
 def _positive_pair(name: str, value: object) -> tuple[float, float]:
@@ -88,7 +96,9 @@ class CalibrationProblem:
     keypoint_bias_std: float = KEYPOINT_BIAS_STD_FRACTION
     """Prior spread of the pose model's keypoint bias along the body, as a fraction of the image height; 0: none."""
     lens_corner_std: float = LENS_CORNER_STD_FRACTION
-    """Prior spread of undetected radial distortion, as the shift of the image corner over its radius; 0: none."""
+    """Prior spread of undetected radial distortion, as the shift of the image corner over its radius, for views up
+    to LENS_WIDE_TAN2 (tan^2 of the half-diagonal field of view); wider views scale it by tan^2 / LENS_WIDE_TAN2
+    (`lens_corner_spread`). 0: none."""
     ankle_height_m: float = DEFAULT_ANKLE_HEIGHT_M
     """Height of the ankle keypoints above the ground (the ground lies this far below their plane)."""
 
@@ -129,6 +139,11 @@ class CalibrationProblem:
     @property
     def known_focal_px(self) -> tuple[float, float] | None:
         return None if self.focal_px is None else _positive_pair("focal_px", self.focal_px)
+
+    def lens_corner_spread(self, half_diagonal_tan: float) -> float:
+        """The undetected lens's prior spread (corner shift over corner radius) for a camera whose image corner lies
+        half_diagonal_tan focal lengths from the image centre (module docstring)."""
+        return self.lens_corner_std * max(1.0, half_diagonal_tan**2 / LENS_WIDE_TAN2)
 
 
 @dataclass(frozen=True)

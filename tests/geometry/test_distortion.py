@@ -211,3 +211,15 @@ def test_a_real_lens_is_still_found_when_individuals_vary_from_frame_to_frame() 
     plain = estimate_division_k(tops, bottoms).k
     labelled = estimate_division_k(tops, bottoms, individuals=individuals).k
     assert plain == pytest.approx(-0.05, abs=0.01) and labelled == plain
+
+
+def test_the_undetected_lens_prior_widens_with_the_field_of_view() -> None:
+    # Up to a 35 deg half-diagonal (tan^2 0.5: Town Centre's 22 deg, most street cameras) the 3 % corner shift;
+    # wider, as a lens design's corner shift grows, tan^2 of the half-diagonal (service.geometry.problem).
+    problem = CalibrationProblem((1920, 1080), 1.32)
+    town_centre = 0.5 * np.hypot(1920, 1080) / 2696.4
+    assert problem.lens_corner_spread(town_centre) == pytest.approx(0.03)
+    assert problem.lens_corner_spread(np.sqrt(0.5)) == pytest.approx(0.03)
+    assert problem.lens_corner_spread(1.0) == pytest.approx(0.06)
+    assert problem.lens_corner_spread(np.sqrt(1.5)) == pytest.approx(0.09)
+    assert CalibrationProblem((1920, 1080), 1.32, lens_corner_std=0.0).lens_corner_spread(2.0) == 0.0
