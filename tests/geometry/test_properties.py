@@ -77,8 +77,15 @@ def test_scaling_the_image_scales_f_and_nothing_else(drawn, s_factor: float) -> 
 @SETTINGS
 @given(st.integers(0, 10_000))
 def test_same_seed_same_answer(seed: int) -> None:
+    # The same answer includes the same refusal: the paper's 90 deg camera with a third of its 30 people outliers
+    # is now and then refused (its undetected lens's prior, wide for so wide a view, leaves f undetermined).
     s = scene(seed, n_people=30, noise_px=1.0, outlier_fraction=0.3)
-    a = solve(s, SolveOptions(seed=seed), equal_focal=False)
-    b = solve(s, SolveOptions(seed=seed), equal_focal=False)
-    assert (a.fx, a.fy, a.rho) == (b.fx, b.fy, b.rho)
-    np.testing.assert_array_equal(a.inliers, b.inliers)
+
+    def answer() -> tuple[object, ...]:
+        try:
+            c = solve(s, SolveOptions(seed=seed), equal_focal=False)
+        except CalibrationError as exc:
+            return (str(exc),)
+        return (c.fx, c.fy, c.rho, tuple(np.flatnonzero(c.inliers)))
+
+    assert answer() == answer()
