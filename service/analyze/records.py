@@ -103,6 +103,9 @@ class CalibrationRecord(BaseModel):
     conventions: str = CONVENTIONS
     duration_s: float = Field(description="Time the solve took.")
     posemetry_version: str
+    warnings: list[str] = Field(
+        default_factory=list, description="What the run could not do with its input, and what that costs."
+    )
 
 
 class PersonRecord(BaseModel):

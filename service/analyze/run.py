@@ -232,6 +232,8 @@ def run_analysis(path: Path, out_dir: Path, options: AnalyzeOptions, observer: O
     frames, skipped = detect(source, estimator, observer)
     frames = mark_static(frames, static_after_s)
     times = {"pose": time.perf_counter() - started}
+    for warning in run_warnings(frames):
+        observer.note(warning)
     if not frames:
         raise AnalyzeError(f"no frame of {path} could be analysed ({len(skipped)} skipped, see the notes above)")
 
@@ -268,6 +270,7 @@ def run_analysis(path: Path, out_dir: Path, options: AnalyzeOptions, observer: O
         solve=solve,
         roles=roles_of(evidence, solve),
         times_s=times,
+        warnings=run_warnings(frames),
     )
     write_calibration(analysis, out_dir)
     started = time.perf_counter()
@@ -276,6 +279,21 @@ def run_analysis(path: Path, out_dir: Path, options: AnalyzeOptions, observer: O
     if solve.calibration is None:
         raise AnalyzeError(_calibration_failure(analysis, out_dir))
     return analysis
+
+
+# A folder of images without --fps: linking (service.geometry.tracks) and the static spots need the frames' times.
+NO_TIMES_WARNING = (
+    "the images have no times (give --fps, the rate they were taken at): a person seen in several images counts as "
+    "several people, so the sigma is too small where people repeat (on simulated cameras the normal was within 2 "
+    "sigma on 86 % instead of 95 %), and no spot can be found static"
+)
+
+
+def run_warnings(frames: Sequence[AnalyzedFrame]) -> list[str]:
+    """What the run cannot do with these frames, and what that costs the answer."""
+    if len(frames) > 1 and any(frame.time_s is None for frame in frames):
+        return [NO_TIMES_WARNING]
+    return []
 
 
 def _calibration_failure(analysis: Analysis, out_dir: Path) -> str:

@@ -116,6 +116,7 @@ def calibration_record(analysis: Analysis) -> CalibrationRecord:
         "options": options.as_record(),
         "duration_s": analysis.times_s.get("calibration", 0.0),
         "posemetry_version": __version__,
+        "warnings": analysis.warnings,
     }
     if cal is None:
         return CalibrationRecord(status="failed", reason=solve.error or "no usable people", **common)

@@ -10,6 +10,7 @@ import pytest
 
 from service.analyze.errors import AnalyzeError
 from service.analyze.options import Threshold, parse_threshold
+from service.analyze.run import NO_TIMES_WARNING
 from tests.support.analyze import analyze, write_image
 from tests.support.shared import SHARED_DATA
 
@@ -71,6 +72,9 @@ def test_no_people_fails_the_calibration_but_keeps_what_was_found(models: Path, 
     assert "error: calibration failed: no people found in 2 frames" in result.output
     cal = json.loads((out / "calibration.json").read_text())
     assert cal["status"] == "failed" and cal["fx_px"] is None and cal["evidence"]["frames"] == 2
+    # Images without --fps: one person in several images would count as several; said during the run and kept.
+    assert cal["warnings"] == [NO_TIMES_WARNING]
+    assert "note: the images have no times (give --fps" in " ".join(result.output.split())
     assert len((out / "frames.jsonl").read_text().splitlines()) == 2
     assert not (out / "overlays").exists()
 

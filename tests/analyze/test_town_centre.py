@@ -182,6 +182,7 @@ def test_image_folder_with_a_known_focal_length(
     assert _angle_deg(np.array(cal["normal"]), truth.ground_normal) < 3.0 * cal["uncertainty"]["normal_std_deg"] < 6.0
     assert cal["evidence"]["frames"] == len(FOLDER_FRAMES) and cal["evidence"]["frames_skipped"] == 2
     assert cal["source"]["kind"] == "images" and cal["options"]["threshold_m"] == 2.0
+    assert cal["warnings"] == []  # --fps gave the images their times
     frames = _lines(out / "frames.jsonl")
     assert [f["file"] for f in frames] == FOLDER_FRAMES
     assert [f["time_s"] for f in frames] == pytest.approx([0.72 * k for k in range(len(FOLDER_FRAMES))])
