@@ -232,7 +232,8 @@ def run_analysis(path: Path, out_dir: Path, options: AnalyzeOptions, observer: O
     frames, skipped = detect(source, estimator, observer)
     frames = mark_static(frames, static_after_s)
     times = {"pose": time.perf_counter() - started}
-    for warning in run_warnings(frames):
+    warnings = run_warnings(frames)  # the guided pass reads the same frames, with the same times
+    for warning in warnings:
         observer.note(warning)
     if not frames:
         raise AnalyzeError(f"no frame of {path} could be analysed ({len(skipped)} skipped, see the notes above)")
@@ -270,7 +271,7 @@ def run_analysis(path: Path, out_dir: Path, options: AnalyzeOptions, observer: O
         solve=solve,
         roles=roles_of(evidence, solve),
         times_s=times,
-        warnings=run_warnings(frames),
+        warnings=warnings,
     )
     write_calibration(analysis, out_dir)
     started = time.perf_counter()
