@@ -278,7 +278,7 @@ CHANGE_POINT_SHARE = 0.5
 # with thousands before it moves far less.
 REBASE_LIMIT = 0.05
 # The test's parameters hold no principal point, so a rebase cannot move the scores onto a newer calibration whose
-# principal point moved (the geometry estimates it, with a prior of 7.5 % of the image height, and an epoch's first
+# principal point moved (the geometry estimates it, with a prior of 9 % of the image height, and an epoch's first
 # solves on a few dozen people place it tens of pixels from later ones): beyond this share of the focal length the
 # test starts again. On a static street with a first reference whose cy was 45-80 px off (f = 1400 px), rebasing
 # raised false moves in 1-2 of 8 runs; at 20-30 px in none.

@@ -81,7 +81,7 @@ class CameraSettings(StrictModel):
         default=None,
         description="The principal point [cx, cy] in pixels (origin top-left), inside the image, if known. People "
         "alone cannot determine its offset across the horizon, which trades against the focal length and tilt: "
-        "without it the image centre is assumed with a spread of 7.5 % of the image height per axis, carried into "
+        "without it the image centre is assumed with a spread of 9 % of the image height per axis, carried into "
         "every sigma.",
     )
     distortion: Distortion | None = Field(
