@@ -24,11 +24,15 @@ sets the scale.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
+from bench.coverage import evaluate
 from bench.simulate import SceneConfig, draw_scene
 from service.geometry import CalibrationProblem, SolveOptions, calibrate
+from service.geometry.camera import project
 from tests.support.geometry import angle_deg, ideal
 
 
@@ -146,3 +150,28 @@ def test_a_known_camera_height_sets_the_scale_and_nothing_else() -> None:
     assert short.rho == pytest.approx(s.rho * 1.6 / 1.7, rel=1e-3)
     assert corrected.rho == pytest.approx(s.rho, rel=2e-3)
     assert corrected.fx == pytest.approx(short.fx, rel=0.01)
+
+
+@pytest.mark.parametrize("above", [True, False])
+def test_a_cropped_streams_principal_point_lies_inside_the_reported_two_sigma(above: bool) -> None:
+    """Issue 16's held-out layouts sit up to 17 % of the image height off centre (streams cropped or shifted in
+    the camera). Across the horizon the people cannot see such an offset, so the tilt and f it costs must lie
+    inside the 2 sigma the principal point's prior carries. On this exact scene a prior of 6 % of the height puts
+    the normal outside it (Mahalanobis 2-sigma), 7.5 % and 9 % inside; the simulator's tail, where noise and the
+    other mismatches add up, is what chose 9 % (docs/benchmarks/camera-model.md)."""
+    config = SceneConfig.surveillance(noise_px=0.0, height_std_m=0.0, n_people=200, roll_deg=(0.0, 1.0))
+    s = draw_scene(config, np.random.default_rng(3))
+    cy = s.cy + (-0.17 if above else 0.17) * s.image_size[1]
+    cropped = replace(
+        s,
+        cy=cy,
+        tops_px=project(s.points_top, s.fx, s.fy, s.cx, cy, s.distortion_k),
+        bottoms_px=project(s.points_bottom, s.fx, s.fy, s.cx, cy, s.distortion_k),
+    )
+    exact_but_the_principal_point = {k: v for k, v in ideal(s).items() if k != "principal_point_px"}
+    cal = calibrate(
+        cropped.tops_px, cropped.bottoms_px, CalibrationProblem(s.image_size, 1.7, **exact_but_the_principal_point)
+    )
+    row = evaluate(cropped, cal)
+    assert row["normal_deg"] > 2.0 and row["f_pct"] > 1.0  # the offset costs the tilt and f: not vacuous
+    assert row["f_covered"] and row["normal_covered"] and row["rho_covered"], row
