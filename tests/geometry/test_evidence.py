@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from service.geometry import CalibrationProblem
 from service.geometry.evidence import balanced_sample, collapse_repeats, repeat_radius_px, solve_evidence
@@ -38,6 +40,38 @@ def test_non_finite_rows_and_empty_input() -> None:
     assert collapse_repeats(tops, bottoms, radius_px=2.0).tolist() == [0, 1]
     assert collapse_repeats(np.zeros((0, 2)), np.zeros((0, 2)), radius_px=2.0).tolist() == []
     assert repeat_radius_px((1920, 1080)) == np.float64(0.002 * np.hypot(1920, 1080))
+
+
+def _greedy_reference(points: np.ndarray, radius_px: float) -> list[int]:
+    """The rule of `collapse_repeats`, written out by brute force: in input order, an observation is kept unless a
+    kept one lies within the radius in every coordinate (non-finite rows are kept)."""
+    finite_kept: list[int] = []
+    kept: list[int] = []
+    for i, point in enumerate(points):
+        if not np.all(np.isfinite(point)):
+            kept.append(i)
+        elif not any(np.max(np.abs(points[k] - point)) <= radius_px for k in finite_kept):
+            finite_kept.append(i)
+            kept.append(i)
+    return kept
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(
+        st.tuples(*[st.integers(0, 6)] * 4).map(lambda xs: [float(x) for x in xs]) | st.just([np.nan, 0.0, 0.0, 0.0]),
+        max_size=40,
+    ),
+    st.sampled_from([0.5, 1.0, 2.0, 3.0]),
+)
+def test_collapse_repeats_is_the_greedy_rule_also_at_the_radius_itself(
+    rows: list[list[float]], radius_px: float
+) -> None:
+    # Integer coordinates on a small grid: many exact repeats, chains of neighbours (a near b near c, a not near
+    # c) and distances exactly at the radius, where the kept set depends on the order and the inclusive bound.
+    points = np.array(rows, dtype=float).reshape(-1, 4)
+    keep = collapse_repeats(points[:, :2], points[:, 2:], radius_px=radius_px)
+    assert keep.tolist() == _greedy_reference(points, radius_px)
 
 
 def test_balanced_sample_keeps_everything_under_the_cap_and_spreads_over_the_image_above_it() -> None:
