@@ -100,12 +100,21 @@ def centres(person: PersonIn | StoredCentres) -> tuple[Point | None, Point | Non
 
 @dataclass(frozen=True)
 class ViolationIn:
-    """A pair of people (indices into the frame's people) closer than the camera's threshold."""
+    """A pair of people (indices into the frame's people) closer than the camera's threshold.
+
+    Where each of the two stands on the ground (the result's `ground_m`) and their client track ids travel with
+    the pair for the `violation.detected` webhook (its cooldown places pairs on the ground), so raising it does not
+    parse the frame's stored result back inside the measuring job's transaction; only the first four are stored.
+    """
 
     person_i: int
     person_j: int
     distance_m: float
     distance_std_m: float | None = None
+    ground_i_m: tuple[float, float] | None = None
+    ground_j_m: tuple[float, float] | None = None
+    track_id_i: str | None = None
+    track_id_j: str | None = None
 
 
 @dataclass(frozen=True)

@@ -245,7 +245,16 @@ def _computation(
             suppressed = f"{len(close)} pairs under the threshold, but the calibration is graded unreliable"
         close = []
     violations = [
-        ViolationIn(person_i=p["i"], person_j=p["j"], distance_m=p["distance_m"], distance_std_m=p["distance_std_m"])
+        ViolationIn(
+            person_i=p["i"],
+            person_j=p["j"],
+            distance_m=p["distance_m"],
+            distance_std_m=p["distance_std_m"],
+            ground_i_m=_ground_of(people[p["i"]]),
+            ground_j_m=_ground_of(people[p["j"]]),
+            track_id_i=people[p["i"]]["track_id"],
+            track_id_j=people[p["j"]]["track_id"],
+        )
         for p in close
     ]
     document = {
@@ -258,3 +267,8 @@ def _computation(
         "alerts_suppressed": suppressed,
     }
     return FrameComputation(pydantic_core.to_json(document, inf_nan_mode="null").decode(), violations)
+
+
+def _ground_of(person: dict[str, Any]) -> tuple[float, float] | None:
+    ground = person["ground_m"]
+    return None if ground is None else (ground[0], ground[1])

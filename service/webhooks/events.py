@@ -8,12 +8,10 @@ one small query per batch.
 
 from __future__ import annotations
 
-import json
 import logging
 import uuid
 from collections.abc import Sequence
 from datetime import datetime, timedelta
-from typing import Any
 
 from sqlalchemy.orm import Session
 
@@ -62,20 +60,12 @@ def announce(dispatcher: Dispatcher, deliveries: Sequence[uuid.UUID]) -> None:
         log.warning("could not queue %d webhook deliveries (the sweep will): %s", len(deliveries), exc)
 
 
-def _people(outcome: FrameOutcome) -> list[dict[str, Any]]:
-    """The frame's people as its stored result gives them."""
-    result = outcome.result
-    parsed = json.loads(result) if isinstance(result, str) else result
-    return list((parsed or {}).get("people", []))
-
-
-def _candidates(outcome: FrameOutcome, people: list[dict[str, Any]]) -> list[Candidate]:
-    """The frame's violating pairs with both people's ground positions (read back from its stored result)."""
-    ground = {p["index"]: p["ground_m"] for p in people if p.get("ground_m")}
+def _candidates(outcome: FrameOutcome) -> list[Candidate]:
+    """The frame's violating pairs with both people's ground positions (a pair with someone unplaced has none)."""
     return [
-        Candidate(v.person_i, v.person_j, tuple(ground[v.person_i]), tuple(ground[v.person_j]))  # type: ignore[arg-type]
+        Candidate(v.person_i, v.person_j, v.ground_i_m, v.ground_j_m)
         for v in outcome.violations
-        if v.person_i in ground and v.person_j in ground
+        if v.ground_i_m is not None and v.ground_j_m is not None
     ]
 
 
@@ -103,9 +93,7 @@ def violation_deliveries(
     deliveries: list[uuid.UUID] = []
     for outcome in frames:
         stds = {(v.person_i, v.person_j): v for v in outcome.violations}
-        people = _people(outcome)
-        track_ids = {p["index"]: p.get("track_id") for p in people}
-        fired = cooldown.admit(outcome.timestamp, _candidates(outcome, people))
+        fired = cooldown.admit(outcome.timestamp, _candidates(outcome))
         if not fired:
             continue
         pairs = []
@@ -121,8 +109,8 @@ def violation_deliveries(
                     distance_std_ft=feet(v.distance_std_m),
                     ground_i_m=c.a,
                     ground_j_m=c.b,
-                    track_id_i=track_ids.get(c.i),
-                    track_id_j=track_ids.get(c.j),
+                    track_id_i=v.track_id_i,
+                    track_id_j=v.track_id_j,
                 )
             )
         event = ViolationDetected(

@@ -73,10 +73,10 @@ def _outcome(frame: Frame, k: int, kind: str) -> FrameOutcome:
         "pairs": [],
         "violations": [],
     }
-    violations = [ViolationIn(0, 1, 0.5, 0.05)]
+    violations = [ViolationIn(0, 1, 0.5, 0.05, ground_i_m=(10.0 * k, 5.0), ground_j_m=(10.0 * k + 0.5, 5.0))]
     status = "done"
     if kind == "a person paired with themself":
-        violations = [ViolationIn(1, 1, 0.0)]
+        violations = [ViolationIn(1, 1, 0.0, ground_i_m=(10.0 * k + 0.5, 5.0), ground_j_m=(10.0 * k + 0.5, 5.0))]
     elif kind == "an unknown status":
         status = "measured"
     timestamp = T0 + timedelta(seconds=k)
