@@ -156,6 +156,12 @@ class Stack:
     def compose(self, *args: str, timeout_s: float = 300) -> str:
         return run(self.command(*args), env=self.environment(), timeout_s=timeout_s)
 
+    def start(self, *args: str) -> subprocess.Popen[str]:
+        """A Compose command left running (its stdout and stderr piped), for what must be in place before an act."""
+        return subprocess.Popen(
+            self.command(*args), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=self.environment()
+        )
+
     def http(self, method: str, path: str, body: object = None, *, key: str | None = None) -> Answer:
         return http(self.base_url, method, path, body, key=key)
 

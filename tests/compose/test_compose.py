@@ -9,8 +9,12 @@ itself (psql in its container) after the faults: nothing accepted may be lost, n
 
 from __future__ import annotations
 
+import functools
+import select
 import threading
 import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
@@ -42,14 +46,17 @@ FRAMES = 12  # keypoint frames of PEOPLE people: 120 people, four solves (at 30,
 PEOPLE = 10
 IMAGES = 9  # Town Centre frames for three pose workers, one of which is killed mid-job
 START = datetime(2026, 3, 1, 8, 0, tzinfo=UTC)
-# Run in a pose worker's container, with RQ's public API: waits for a pose worker with a job in hand and prints its
-# host name (its container's id) and the job's id; the one whose job started last, so that it has the most left to
-# do. Host names given as arguments are skipped: a killed worker stays registered, with its job, for a while.
+# Run in the API's container (the same image, never killed here), with RQ's public API: says "watching" once it
+# reaches Redis, then waits for a pose worker with a job in hand and prints its host name (its container's id) and
+# the job's id; the one whose job started last, so that it has the most left to do. Host names given as arguments
+# are skipped: a killed worker stays registered, with its job, for a while.
 FIND_BUSY_POSE_WORKER = """
 import os, sys, time
 import redis, rq
 connection = redis.Redis.from_url(os.environ["POSEMETRY_REDIS_URL"])
 queue = rq.Queue("pose", connection=connection)
+rq.Worker.all(queue=queue)
+print("watching", flush=True)
 deadline = time.monotonic() + 60
 while time.monotonic() < deadline:
     busy = []
@@ -207,13 +214,13 @@ def _an_image_frame_is_posed(stack: Stack, key: str, jpeg: bytes) -> None:
 def _a_pose_worker_killed_mid_job_loses_nothing(stack: Stack, key: str, jpegs: list[Path], phases: Phases) -> int:
     stack.compose("up", "-d", "--no-recreate", "--scale", "worker-pose=3")
     wait_until(lambda: stack.redis("SCARD", "rq:workers:pose") == "3", "three pose workers")
-    urls = [_post_image(stack, key, f"town-{k}", path.read_bytes()) for k, path in enumerate(jpegs)]
+    urls: list[str] = []
     killed: tuple[str, str] | None = None
     tried: list[str] = []
-    for _ in range(5):  # a job may end between being seen and the kill: then another worker is tried
-        find = ["exec", "-T", "worker-pose", "python", "-c", FIND_BUSY_POSE_WORKER, *tried]
-        container, job = stack.compose(*find).split()
-        run(["docker", "kill", container])
+    for attempt in range(5):  # a job may end between being seen and the kill: then another batch and worker are tried
+        post = functools.partial(_post_images, stack, key, jpegs, f"town-{attempt}")
+        container, job, posted = _kill_a_busy_pose_worker(stack, tried, post)
+        urls += posted
         tried.append(container)
         # Killed in the middle of the job: its frame is still waiting for pose (the job's last act would end that).
         frame_url = f"/v1/cameras/town/frames/{job.removeprefix('pose-')}"
@@ -232,6 +239,43 @@ def _a_pose_worker_killed_mid_job_loses_nothing(stack: Stack, key: str, jpegs: l
     # The killed job's frame is among them: it ran again, elsewhere or in the restarted container.
     assert killed[1].removeprefix("pose-") in {url.rsplit("/", 1)[1] for url in urls}
     return 1 + len(urls)
+
+
+def _post_images(stack: Stack, key: str, jpegs: list[Path], prefix: str) -> list[str]:
+    return [_post_image(stack, key, f"{prefix}-{k}", path.read_bytes()) for k, path in enumerate(jpegs)]
+
+
+def _kill_a_busy_pose_worker(
+    stack: Stack, skipped: list[str], post: Callable[[], list[str]]
+) -> tuple[str, str, list[str]]:
+    """Kill a pose worker caught with a job in hand; its container, its job and the URLs `post` returned.
+
+    The watcher is in place before `post` gives the workers their batch (three workers pose nine frames before a
+    `docker compose exec` started after the posts has looked: CI saw exactly that), and the kill follows the
+    moment it names a worker, while the batch is still being posted (a job lasts a few hundred milliseconds)."""
+    find = ["exec", "-T", "api", "python", "-c", FIND_BUSY_POSE_WORKER, *skipped]
+    watcher = stack.start(*find)
+    assert watcher.stdout is not None and watcher.stderr is not None
+    with ThreadPoolExecutor(1) as poster:
+        try:
+            ready, _, _ = select.select([watcher.stdout], [], [], DEADLINE_S)
+            first = watcher.stdout.readline().strip() if ready else ""
+            if first != "watching":
+                watcher.kill()
+                raise AssertionError(f"the watcher did not start ({first!r}): {watcher.stderr.read()[-2000:]}")
+            posting = poster.submit(post)
+            # The same buffered stream as the first line, to the watcher's end (it gives up on its own after 60 s).
+            out = watcher.stdout.read()
+            err = watcher.stderr.read()
+            watcher.wait(timeout=DEADLINE_S)
+        finally:
+            if watcher.poll() is None:
+                watcher.kill()
+                watcher.wait()
+        assert watcher.returncode == 0, f"{' '.join(find[:5])} exited with {watcher.returncode}: {out}{err}"
+        container, job = out.split()
+        run(["docker", "kill", container])
+        return container, job, posting.result()
 
 
 def _post_until_accepted(stack: Stack, key: str, body: dict[str, Any], refusals: list[Answer]) -> Answer:
