@@ -66,6 +66,7 @@ without ids. Ids are one camera's and one calibration epoch's, as a sample is.
 from __future__ import annotations
 
 import math
+from bisect import bisect_left
 from collections.abc import Sequence
 
 import numpy as np
@@ -158,7 +159,9 @@ def link_tracks(
     client = _client_codes(client_tracks, times)
     labels = np.full(n, -1)
     members: list[list[int]] = []  # per track: its observations in time order
-    last_time = np.full(n, -np.inf)  # per track (at most n): its latest observation's time
+    member_times: list[list[float]] = []  # per track: their times (increasing: one observation per frame time)
+    last_seen = np.zeros(n, dtype=np.intp)  # per track (at most n): its latest observation
+    last_time = np.full(n, -np.inf)  # per track: that observation's time
     first_time = np.full(n, np.inf)  # per track: its first observation's time
     track_client = np.full(n, -1)  # per track: the code of its client id, -1 while it has none
     by_time = np.flatnonzero(valid)
@@ -170,7 +173,7 @@ def link_tracks(
         young = t - first_time[: len(members)] <= max_span_s + _TIME_TOLERANCE_S
         live = np.flatnonzero((since > 0.0) & (since <= max_gap_s + _TIME_TOLERANCE_S) & young)
         if len(live):
-            cost = gates.costs([members[k] for k in live], current)
+            cost = gates.costs([members[k] for k in live], [member_times[k] for k in live], last_seen[live], current)
             if client is not None:
                 cost[_other_clients(track_client[live], client[current])] = np.inf
             finite = np.isfinite(cost)
@@ -179,6 +182,8 @@ def link_tracks(
                 if finite[r, c]:
                     labels[current[c]] = live[r]
                     members[live[r]].append(int(current[c]))
+                    member_times[live[r]].append(t)
+                    last_seen[live[r]] = current[c]
                     last_time[live[r]] = t
                     assigned[c] = True
                     if client is not None:
@@ -186,9 +191,11 @@ def link_tracks(
         for c in np.flatnonzero(~assigned):
             labels[current[c]] = len(members)
             last_time[len(members)] = first_time[len(members)] = t
+            last_seen[len(members)] = current[c]
             if client is not None:
                 track_client[len(members)] = client[current[c]]
             members.append([int(current[c])])
+            member_times.append([t])
     unlabelled = labels < 0
     labels[unlabelled] = len(members) + np.arange(int(unlabelled.sum()))
     if appearance is not None:
@@ -321,17 +328,24 @@ class _Gates:
         max_size_ratio: float,
         single_max_gap_s: float = SINGLE_MAX_GAP_S,
     ) -> None:
-        self.times, self.bottoms, self.segment, self.length = times, bottoms, segment, length
+        self.times, self.bottoms, self.length = times, bottoms, length
+        with np.errstate(divide="ignore", invalid="ignore"):  # invalid rows (zero length) never join a track
+            self.along_unit = segment / length[:, None]
+        # A last row of zeros pads the velocity's windows: padded terms add nothing to the window's sums.
+        self.padding = len(times)
+        self.padded_times, self.padded_bottoms = np.append(times, 0.0), np.vstack([bottoms, np.zeros((1, 2))])
         self.height_m, self.max_speed_m_s = height_m, max_speed_m_s
         self.max_size_ratio, self.single_max_gap_s = max_size_ratio, single_max_gap_s
 
-    def costs(self, tracks: list[list[int]], current: np.ndarray) -> np.ndarray:
+    def costs(
+        self, tracks: list[list[int]], track_times: list[list[float]], last: np.ndarray, current: np.ndarray
+    ) -> np.ndarray:
         """(tracks, observations) gated distances in units of the allowance; inf where the link is impossible.
 
-        All of `current` are in one frame, so the gap since each track's last observation is one number per track
-        (the caller passes live tracks only: 0 < gap <= link_tracks' max_gap_s).
+        `track_times` are the tracks' observations' times and `last` their latest observations. All of `current`
+        are in one frame, so the gap since each track's last observation is one number per track (the caller
+        passes live tracks only: 0 < gap <= link_tracks' max_gap_s).
         """
-        last = np.array([track[-1] for track in tracks])
         gap = self.times[current[0]] - self.times[last]
         last_length, current_length = self.length[last][:, None], self.length[current][None, :]
         size = 0.5 * (last_length + current_length)
@@ -339,16 +353,20 @@ class _Gates:
         move = self.bottoms[current][None, :, :] - self.bottoms[last][:, None, :]
         ratio = np.maximum(last_length, current_length) / np.minimum(last_length, current_length)
         jitter = _JITTER_FRACTION * size
-        ok = (np.linalg.norm(move, axis=2) <= self.max_speed_m_s * gap[:, None] * metre_px + jitter) & (
-            ratio <= self.max_size_ratio
-        )
+        distance = np.sqrt(move[:, :, 0] ** 2 + move[:, :, 1] ** 2)
+        ok = (distance <= self.max_speed_m_s * gap[:, None] * metre_px + jitter) & (ratio <= self.max_size_ratio)
         cost = np.full(move.shape[:2], np.inf)
         # Only tracks that pass the plain speed and size gates for some observation are judged further: in a
         # solve's sample most live tracks pass none, and their windows cost most of the linking's time.
         candidates = np.flatnonzero(ok.any(axis=1))
         if not len(candidates):
             return cost
-        windows = [self._window(tracks[r], float(gap[r])) for r in candidates]
+        # Each track's observations of the last max(VELOCITY_WINDOW_S, gap) seconds (its times increase).
+        since = (
+            self.times[last[candidates]] - np.maximum(VELOCITY_WINDOW_S, gap[candidates]) - _TIME_TOLERANCE_S
+        ).tolist()
+        starts = [bisect_left(track_times[r], s) for r, s in zip(candidates.tolist(), since, strict=True)]
+        windows = [tracks[r][start:] for r, start in zip(candidates.tolist(), starts, strict=True)]
         span = self.times[last[candidates]] - self.times[[window[0] for window in windows]]
         sizes = np.array([len(window) for window in windows])
         fitted = (sizes >= 2) & (gap[candidates] <= MAX_EXTRAPOLATION * span + _TIME_TOLERANCE_S)
@@ -367,29 +385,22 @@ class _Gates:
             cost[rows] = self._ellipse(last[rows], move[rows], reach_px, jitter[rows])
         return np.where(ok & (cost <= 1.0), cost, np.inf)
 
-    def _window(self, track: list[int], gap: float) -> list[int]:
-        """The track's observations of the last max(VELOCITY_WINDOW_S, gap) seconds, scanned from its end."""
-        start, since = len(track) - 1, self.times[track[-1]] - max(VELOCITY_WINDOW_S, gap) - _TIME_TOLERANCE_S
-        while start > 0 and self.times[track[start - 1]] >= since:
-            start -= 1
-        return track[start:]
-
     def _from_velocity(
         self, windows: list[list[int]], current: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Per track: the constant-velocity prediction's miss of each observation (a least-squares line through
         the window's ankle centres), the keypoint jitter through the fit relative to that of a difference of two
         observations, and the metres a walker may stray from the line: the gait's surge and a bounded
-        acceleration. Windows of unequal length are padded with their first observation and masked out."""
+        acceleration. Windows of unequal length are padded in front with the row of zeros."""
         count = np.array([len(window) for window in windows])
         width = int(count.max())
-        index = np.array([[window[0]] * (width - len(window)) + window for window in windows])
+        index = np.array([[self.padding] * (width - len(window)) + window for window in windows])
         mask = np.arange(width)[None, :] >= (width - count)[:, None]
-        t = self.times[index]
-        centre = np.where(mask, t, 0.0).sum(axis=1) / count
+        t = self.padded_times[index]
+        centre = t.sum(axis=1) / count
         offset = np.where(mask, t - centre[:, None], 0.0)
         spread = (offset**2).sum(axis=1)
-        points = np.where(mask[:, :, None], self.bottoms[index], 0.0)
+        points = self.padded_bottoms[index]
         mean = points.sum(axis=1) / count[:, None]
         velocity = (offset[:, :, None] * (points - mean[:, None, :])).sum(axis=1) / spread[:, None]
         tau = self.times[current[0]] - centre
@@ -402,7 +413,7 @@ class _Gates:
     ) -> np.ndarray:
         """|move| against reach + jitter across the segment, ALONG_SEGMENT_SHARE x reach + jitter along it: ground
         metres seen along the segment are depth metres, foreshortened by tan(alpha)."""
-        along_unit = self.segment[last] / self.length[last][:, None]
+        along_unit = self.along_unit[last]
         along = (move_px * along_unit[:, None, :]).sum(axis=2)
         across = move_px[:, :, 1] * along_unit[:, None, 0] - move_px[:, :, 0] * along_unit[:, None, 1]
         return np.hypot(along / (ALONG_SEGMENT_SHARE * reach_px + jitter_px), across / (reach_px + jitter_px))

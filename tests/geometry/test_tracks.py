@@ -195,7 +195,11 @@ def test_tracks_judged_together_get_the_costs_each_gets_alone() -> None:
     gates = _Gates(times, points[:, 1], segment, np.hypot(*segment.T), 1.32, 3.0, 1.25)
     tracks = [[10], [18, 19, 20, 21], [24, 25, 26, 27, 28, 29, 30, 31, 32, 33], [40, 42, 43]]
     current = np.array([12 * k + 11 for k in range(4)])  # every walker's 12th sighting
-    together = gates.costs(tracks, current)
-    alone = np.stack([gates.costs([track], current)[0] for track in tracks])
+
+    def costs(judged: list[list[int]]) -> np.ndarray:
+        return gates.costs(judged, [times[t].tolist() for t in judged], np.array([t[-1] for t in judged]), current)
+
+    together = costs(tracks)
+    alone = np.stack([costs([track])[0] for track in tracks])
     np.testing.assert_array_equal(together, alone)
     assert np.isfinite(np.diag(together)).all()  # each walker's own next sighting passes its gates
