@@ -46,8 +46,11 @@ log = logging.getLogger(JOBS_LOGGER)
 # anything beyond half an image width/height past an edge is a unit or coordinate-system mistake.
 COORDINATE_MARGIN_FRACTION = 0.5
 # Frames measured per read/compute/write round: large enough to amortise the transactions, small enough that
-# the write lock is held for milliseconds.
-FRAMES_CHUNK = 50
+# the write lock is held for milliseconds (the API's frame writers queue behind it). Under `posemetry bench load`,
+# runs alternating: 50 gave a keypoint POST p99 of 153-173 ms, 25 gave 112-127 ms with measuring as far behind
+# (keypoint frames answered 11-15 s after their post, p50, against 7-12), 12 gave 93 and 173 ms with measuring
+# further behind (18-20 s).
+FRAMES_CHUNK = 25
 # A measuring job stops taking new chunks after FRAMES_JOB_BUDGET_S (and queues its own re-run), so one busy
 # camera cannot hold a worker while other cameras wait.
 FRAMES_JOB_BUDGET_S = 5
