@@ -45,10 +45,12 @@ log = logging.getLogger(JOBS_LOGGER)
 # People keyed for sampling per transaction: the first chunk, then as many as fit KEY_TRANSACTION_S. Keying shares
 # index pages between people when a camera's index is small (100 000 people: 11 us per person), but with a million
 # stored each person dirties pages of its own (41 us per person), and a fixed 2 000 would hold SQLite's one write
-# lock for 80 ms while the API waits to store frames.
+# lock for 80 ms while the API waits to store frames. Under `posemetry bench load`, two pairs of runs alternating:
+# 10 ms transactions gave a keypoint POST p99 of 119-123 ms and due solves 8.0-9.0 s (p99), 20 ms gave 130-191 ms
+# and 10.5-11.0 s.
 KEY_CHUNK = 2000
 KEY_CHUNK_BOUNDS = (100, 20_000)
-KEY_TRANSACTION_S = 0.02
+KEY_TRANSACTION_S = 0.01
 
 
 def evidence_for_next_solve(
