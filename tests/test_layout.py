@@ -148,7 +148,18 @@ def test_the_api_never_loads_the_queue() -> None:
 
 def test_geometry_is_pure() -> None:
     """service.geometry is numpy/scipy only: importable and testable without a database, Redis or a model."""
-    allowed = {"numpy", "scipy", "service", "__future__", "dataclasses", "typing", "collections", "math", "functools"}
+    allowed = {
+        "numpy",
+        "scipy",
+        "service",
+        "__future__",
+        "dataclasses",
+        "typing",
+        "collections",
+        "math",
+        "functools",
+        "bisect",
+    }
     for module in (m for m in _modules() if _in(m, "service.geometry")):
         for found in imports_of(module):
             root = found.module.split(".")[0]
