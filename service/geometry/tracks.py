@@ -362,12 +362,10 @@ class _Gates:
         if not len(candidates):
             return cost
         # Each track's observations of the last max(VELOCITY_WINDOW_S, gap) seconds (its times increase).
-        since = (
-            self.times[last[candidates]] - np.maximum(VELOCITY_WINDOW_S, gap[candidates]) - _TIME_TOLERANCE_S
-        ).tolist()
-        starts = [bisect_left(track_times[r], s) for r, s in zip(candidates.tolist(), since, strict=True)]
-        windows = [tracks[r][start:] for r, start in zip(candidates.tolist(), starts, strict=True)]
-        span = self.times[last[candidates]] - self.times[[window[0] for window in windows]]
+        latest = self.times[last[candidates]]
+        since = (latest - np.maximum(VELOCITY_WINDOW_S, gap[candidates]) - _TIME_TOLERANCE_S).tolist()
+        windows = [tracks[r][bisect_left(track_times[r], s) :] for r, s in zip(candidates.tolist(), since, strict=True)]
+        span = latest - self.times[[window[0] for window in windows]]
         sizes = np.array([len(window) for window in windows])
         fitted = (sizes >= 2) & (gap[candidates] <= MAX_EXTRAPOLATION * span + _TIME_TOLERANCE_S)
         single = ~fitted & (gap[candidates] <= self.single_max_gap_s + _TIME_TOLERANCE_S)
