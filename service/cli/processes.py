@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 import typer
 from rich.console import Console
 
+from service.cli import listeners
 from service.observability.multiprocess import DIR_NAME as METRICS_DIR_NAME
 from service.runtime import SPLIT_HELP, default_process_split
 
@@ -148,19 +149,26 @@ def api(
 
 
 def _run_api(host: str, port: int, processes: int, log_level: str) -> None:
-    """uvicorn on `create_api`, with logging left to the app's own configuration."""
+    """uvicorn on `create_api`, with logging left to the app's own configuration; several processes each listen on
+    a socket of their own where the kernel balances them (service.cli.listeners)."""
     import uvicorn
 
-    uvicorn.run(
-        "service.cli.processes:create_api",
-        factory=True,
-        host=host,
-        port=port,
-        workers=processes,
-        log_level=log_level,
-        log_config=None,
-        access_log=False,  # one line per request comes from the app, with its request id
-    )
+    app = "service.cli.processes:create_api"
+    options = {"factory": True, "host": host, "port": port, "workers": processes, "log_level": log_level}
+    options |= {"log_config": None, "access_log": False}  # one line per request comes from the app, with its id
+    if processes == 1 or not listeners.BALANCES:
+        uvicorn.run(app, **options)  # type: ignore[arg-type]
+        return
+    from uvicorn.supervisors import Multiprocess
+
+    reserved, own = listeners.reserve(host, port)
+    try:
+        log.info("API listening on http://%s:%d: %d processes, a socket each", host, own.address[1], processes)
+        Multiprocess(uvicorn.Config(app, **options), sockets=[own]).run()  # type: ignore[arg-type, list-item]
+    except KeyboardInterrupt:
+        pass
+    finally:
+        reserved.close()
 
 
 def serve(

@@ -1,0 +1,118 @@
+"""The API processes' own sockets (service.cli.listeners): the kernel, not a race between processes, places each
+connection, the supervisor's placeholder never takes one, and a process uvicorn restarts listens again."""
+
+from __future__ import annotations
+
+import json
+import os
+import pickle
+import selectors
+import signal
+import socket
+import time
+from collections import Counter
+from pathlib import Path
+
+import psutil
+import pytest
+
+from service.cli import listeners
+from tests.support.serving import Served, clean_environment, free_port, serve
+
+pytestmark = pytest.mark.skipif(not listeners.BALANCES, reason="SO_REUSEPORT balances connections on Linux only")
+
+CONNECTIONS = 64
+
+
+def test_each_process_gets_its_own_listener_and_the_kernel_spreads_connections() -> None:
+    reserved, own = listeners.reserve("127.0.0.1", 0)
+    port = own.address[1]
+    assert port != 0 and reserved.getsockname() == ("127.0.0.1", port)
+    # What each API process does: unpickle the stand-in (spawn), then listen on the socket it became.
+    first, second = (pickle.loads(pickle.dumps(own)) for _ in range(2))
+    clients: list[socket.socket] = []
+    try:
+        assert isinstance(first, socket.socket) and first.fileno() != second.fileno()
+        assert first.getsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT) == 1
+        for listener in (first, second):
+            listener.listen(CONNECTIONS)
+            listener.setblocking(False)
+        # Each client is a new connection from a new source port, as a camera's would be.
+        clients = [socket.create_connection(("127.0.0.1", port), timeout=5) for _ in range(CONNECTIONS)]
+        accepted = {first.fileno(): 0, second.fileno(): 0}
+        with selectors.DefaultSelector() as selector:
+            for listener in (first, second):
+                selector.register(listener, selectors.EVENT_READ)
+            deadline = time.monotonic() + 10
+            while sum(accepted.values()) < CONNECTIONS and time.monotonic() < deadline:
+                for key, _ in selector.select(timeout=0.5):
+                    conn, _ = key.fileobj.accept()  # type: ignore[union-attr]
+                    conn.close()
+                    accepted[key.fd] += 1
+        # Every connection reached a listening process (none queued on the placeholder), and both processes got a
+        # share: a binomial split of 64 leaves either side under 16 with a probability of about 1e-5.
+        assert sum(accepted.values()) == CONNECTIONS
+        assert min(accepted.values()) >= 16, accepted
+    finally:
+        for sock in (*clients, first, second, reserved):
+            sock.close()
+
+
+def test_the_placeholder_holds_the_port() -> None:
+    reserved, own = listeners.reserve("127.0.0.1", 0)
+    try:
+        with socket.socket() as other, pytest.raises(OSError):
+            other.bind(own.address)  # a process without SO_REUSEPORT cannot take the API's port
+    finally:
+        reserved.close()
+
+
+def _listening(port: int) -> int:
+    """TCP sockets listening on `port` (/proc/net/tcp: one line per socket, state 0A is LISTEN)."""
+    lines = Path("/proc/net/tcp").read_text().splitlines()[1:]
+    return sum(1 for fields in map(str.split, lines) if int(fields[1].split(":")[1], 16) == port and fields[3] == "0A")
+
+
+def _api_processes(app: Served) -> set[int]:
+    """serve's uvicorn processes (spawned by multiprocessing; the workers and Redis are started otherwise)."""
+    pids = set()
+    for child in psutil.Process(app.process.pid).children():
+        try:
+            if child.status() != psutil.STATUS_ZOMBIE and "spawn_main" in " ".join(child.cmdline()):
+                pids.add(child.pid)
+        except psutil.Error:
+            pass  # exited between listing and inspection
+    return pids
+
+
+def _served_by(log_path: Path, prefix: str) -> Counter[int]:
+    """How many requests whose id starts with `prefix` each process logged."""
+    records = (json.loads(line) for line in log_path.read_text().splitlines() if line.startswith("{"))
+    return Counter(r["pid"] for r in records if str(r.get("request_id", "")).startswith(prefix))
+
+
+def test_serve_s_api_processes_listen_each_and_share_new_connections(tmp_path: Path) -> None:
+    port, log_path = free_port(), tmp_path / "serve.log"
+    args = ["--api-processes", "2", "--workers", "1", "--log-format", "json"]
+    with serve(tmp_path / "serve", clean_environment(), args, output=log_path, port=port) as app:
+        app.wait_for(lambda: len(_api_processes(app)) == 2 and _listening(port) == 2, "a socket per API process")
+        apis = _api_processes(app)
+        # urllib opens a new connection for each request, as a camera does when it (re)connects.
+        for index in range(40):
+            assert app.http("GET", "/readyz", headers={"X-Request-ID": f"spread-{index}"})[0] == 200
+        app.wait_for(lambda: sum(_served_by(log_path, "spread-").values()) == 40, "the 40 requests' log lines")
+        served = _served_by(log_path, "spread-")
+        assert set(served) == apis and min(served.values()) >= 5, served  # binomial(40): P(< 5) ~ 1e-7
+
+        # uvicorn's supervisor replaces a dead API process; the new one opens its own socket again.
+        victim = min(apis)
+        os.kill(victim, signal.SIGKILL)
+        app.wait_for(
+            lambda: victim not in _api_processes(app) and len(_api_processes(app)) == 2 and _listening(port) == 2,
+            "a replacement API process listening",
+        )
+        for index in range(40):
+            assert app.http("GET", "/readyz", headers={"X-Request-ID": f"again-{index}"})[0] == 200
+        app.wait_for(lambda: sum(_served_by(log_path, "again-").values()) == 40, "the 40 requests' log lines")
+        assert set(_served_by(log_path, "again-")) == _api_processes(app)
+        assert app.stop() == 0
