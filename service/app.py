@@ -28,6 +28,7 @@ from service.frames.writer import FrameWriter
 from service.health import metrics
 from service.health import routes as health
 from service.http.json_body import register_body_schemas
+from service.http.keep_alive import RecycleConnections
 from service.http.problems import PROBLEM_MEDIA_TYPE, PROBLEM_SCHEMA, BodyGuard, HeaderGuard, install_handlers
 from service.http.query_params import known_query_only
 from service.keys import routes as keys
@@ -142,6 +143,7 @@ def create_app(
     public_paths = frozenset(route.path for module in PUBLIC_ROUTERS for route in module.router.routes)
     app.add_middleware(AuthenticateBeforeBody, authenticator=app.state.authenticator, public_paths=public_paths)
     app.add_middleware(HeaderGuard, max_header_bytes=settings.max_header_bytes)
+    app.add_middleware(RecycleConnections, max_requests=settings.keep_alive_max_requests)
     # Added last, so outermost: what the key check and the body guard refuse is measured, logged and given a
     # request id too.
     app.add_middleware(RequestTelemetry, route_templates=lambda: app.openapi()["paths"])

@@ -83,6 +83,13 @@ class Settings(BaseSettings):
         "on it: the store checks the size again when it commits a frame, and a frame checked against a size changed "
         "meanwhile (by any API process) is checked again against the new one; 0 reads every request.",
     )
+    keep_alive_max_requests: int = Field(
+        default=1000,
+        ge=0,
+        description="Requests each API process answers on one keep-alive connection before closing it (with "
+        "`Connection: close`; clients reconnect), so that the connections of cameras that all reconnected to the "
+        "first API process after a restart spread over the processes again within minutes; 0 never closes them.",
+    )
     max_people_per_frame: int = Field(
         default=200,
         ge=1,

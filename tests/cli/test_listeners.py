@@ -116,3 +116,47 @@ def test_serve_s_api_processes_listen_each_and_share_new_connections(tmp_path: P
         app.wait_for(lambda: sum(_served_by(log_path, "again-").values()) == 40, "the 40 requests' log lines")
         assert set(_served_by(log_path, "again-")) == _api_processes(app)
         assert app.stop() == 0
+
+
+def _get(sock: socket.socket, request_id: str) -> bool:
+    """GET /healthz on `sock`; whether the answer closes the connection."""
+    sock.sendall(f"GET /healthz HTTP/1.1\r\nHost: test\r\nX-Request-ID: {request_id}\r\n\r\n".encode())
+    data = b""
+    while b"\r\n\r\n" not in data or not data.rstrip().endswith(b"}"):
+        chunk = sock.recv(4096)
+        assert chunk, "closed before the answer"
+        data += chunk
+    return b"\r\nconnection: close\r\n" in data.lower()
+
+
+def test_connections_that_all_reached_one_process_spread_once_recycled(tmp_path: Path) -> None:
+    """While uvicorn replaces a killed API process, the cameras that reconnect all reach the other one; closing
+    each connection after a few requests (keep_alive_max_requests) lets the kernel place them again."""
+    port, log_path = free_port(), tmp_path / "serve.log"
+    args = ["--api-processes", "2", "--workers", "1", "--log-format", "json"]
+    env = clean_environment(keep_alive_max_requests="4")
+    with serve(tmp_path / "serve", env, args, output=log_path, port=port) as app:
+        app.wait_for(lambda: len(_api_processes(app)) == 2 and _listening(port) == 2, "a socket per API process")
+        survivor, victim = sorted(_api_processes(app))
+        os.kill(victim, signal.SIGKILL)
+        app.wait_for(lambda: _listening(port) == 1, "the killed process's socket gone")
+        cameras = [socket.create_connection(("127.0.0.1", port), timeout=30) for _ in range(40)]
+        try:
+            for index, camera in enumerate(cameras):
+                assert not _get(camera, f"first-{index}")
+            app.wait_for(lambda: _served_by(log_path, "first-") == Counter({survivor: 40}), "40 on the survivor")
+            app.wait_for(lambda: len(_api_processes(app)) == 2 and _listening(port) == 2, "a replacement listening")
+            for round_ in range(4):  # each connection's 4th answer closes it; the camera reconnects
+                for index, camera in enumerate(cameras):
+                    if _get(camera, f"round{round_}-{index}"):
+                        camera.close()
+                        cameras[index] = socket.create_connection(("127.0.0.1", port), timeout=30)
+            for index, camera in enumerate(cameras):
+                _get(camera, f"last-{index}")
+            app.wait_for(lambda: sum(_served_by(log_path, "last-").values()) == 40, "the last requests' log lines")
+            last = _served_by(log_path, "last-")
+            assert set(last) == _api_processes(app) and min(last.values()) >= 5, last  # binomial(40): P ~ 1e-7
+        finally:
+            for camera in cameras:
+                camera.close()
+        assert app.stop() == 0
