@@ -1,13 +1,12 @@
-"""One listening socket per API process (SO_REUSEPORT), so the kernel spreads connections evenly over the processes.
+"""One listening socket per API process (SO_REUSEPORT): the kernel, not a race between processes, places connections.
 
 uvicorn's own multi-process mode binds one socket in its supervisor and lets every process accept from it: which
 process takes a connection is a race between their event loops, and a keep-alive connection then stays where it
-landed. Under `posemetry bench load` (fifty
-cameras, each on its own keep-alive connection) the two API processes held 28 and 5 of the connections in one run
-and 16 and 17 in the next, and the busier process's requests queued behind its own interpreter lock while the
-other process idled (docs/benchmarks/load.md, "stop 33"). With a socket of its own in each process, bound with
-SO_REUSEPORT to the same address, Linux picks the listener for each new connection by a hash of its addresses,
-whatever the processes are doing.
+landed. Under `posemetry bench load` (each camera on a keep-alive connection of its own) the two API processes held
+28 and 5 of the connections in one run and 16 and 17 in another, and the busier process's requests queued behind
+its own interpreter lock while the other process idled (docs/benchmarks/load.md, "stop 33"). With a socket of its
+own in each process, bound with SO_REUSEPORT to the same address, Linux picks the listener for each new connection
+by a hash of its addresses, whatever the processes are doing.
 
 uvicorn's supervisor (restarts, health pings, signals) is kept: it hands each process a picklable stand-in instead
 of a socket, which opens the process's own socket when the process unpickles it. The supervisor itself holds a

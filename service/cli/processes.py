@@ -12,7 +12,7 @@ import signal
 import subprocess
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import typer
 from rich.console import Console
@@ -154,17 +154,18 @@ def _run_api(host: str, port: int, processes: int, log_level: str) -> None:
     import uvicorn
 
     app = "service.cli.processes:create_api"
-    options = {"factory": True, "host": host, "port": port, "workers": processes, "log_level": log_level}
-    options |= {"log_config": None, "access_log": False}  # one line per request comes from the app, with its id
+    # access_log off: one line per request comes from the app, with its request id.
+    options: dict[str, Any] = dict(factory=True, host=host, port=port, workers=processes, log_level=log_level)
+    options |= dict(log_config=None, access_log=False)
     if processes == 1 or not listeners.BALANCES:
-        uvicorn.run(app, **options)  # type: ignore[arg-type]
+        uvicorn.run(app, **options)
         return
     from uvicorn.supervisors import Multiprocess
 
     reserved, own = listeners.reserve(host, port)
     try:
         log.info("API listening on http://%s:%d: %d processes, a socket each", host, own.address[1], processes)
-        Multiprocess(uvicorn.Config(app, **options), sockets=[own]).run()  # type: ignore[arg-type, list-item]
+        Multiprocess(uvicorn.Config(app, **options), sockets=[own]).run()  # type: ignore[list-item]
     except KeyboardInterrupt:
         pass
     finally:
