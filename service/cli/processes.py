@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 from rich.console import Console
 
-from service.cli import listeners
+from service.cli.listeners import BALANCES, reserve
 from service.observability.multiprocess import DIR_NAME as METRICS_DIR_NAME
 from service.runtime import SPLIT_HELP, default_process_split
 
@@ -157,12 +157,12 @@ def _run_api(host: str, port: int, processes: int, log_level: str) -> None:
     # access_log off: one line per request comes from the app, with its request id.
     options: dict[str, Any] = dict(factory=True, host=host, port=port, workers=processes, log_level=log_level)
     options |= dict(log_config=None, access_log=False)
-    if processes == 1 or not listeners.BALANCES:
+    if processes == 1 or not BALANCES:
         uvicorn.run(app, **options)
         return
     from uvicorn.supervisors import Multiprocess
 
-    reserved, own = listeners.reserve(host, port)
+    reserved, own = reserve(host, port)
     try:
         log.info("API listening on http://%s:%d: %d processes, a socket each", host, own.address[1], processes)
         Multiprocess(uvicorn.Config(app, **options), sockets=[own]).run()  # type: ignore[list-item]

@@ -57,7 +57,8 @@ def appearance_distances(roots_a: np.ndarray, roots_b: np.ndarray) -> np.ndarray
     """(len(a), len(b)) distances in [0, 1] between decoded descriptors: the larger of the regions' Bhattacharyya
     distances (0 for equal histograms, 1 for ones without a common bin)."""
     # The larger distance is the smaller coefficient: one matrix product per region, in float32 (a long-gap link
-    # compares every open chain with every new track; float32 moves a distance by ~1e-7, quantising by ~1e-2).
+    # compares every open chain with every new track; float32 moves a coefficient by ~1e-7, so a distance near 0 by
+    # up to ~5e-4 through the square root, against links judged to ~1e-2).
     regions = range(roots_a.shape[1])
     a, b = (np.ascontiguousarray(np.swapaxes(roots, 0, 1), dtype=np.float32) for roots in (roots_a, roots_b))
     coefficient = np.minimum.reduce([a[r] @ b[r].T for r in regions]).astype(np.float64)

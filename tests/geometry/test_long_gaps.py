@@ -44,7 +44,9 @@ def test_descriptor_distance_is_the_bhattacharyya_distance_of_the_histograms() -
     assert present.tolist() == [True, True, False, False]
     distances = appearance_distances(roots[:2], roots[:2])
     exact = max(np.sqrt(1.0 - np.sum(np.sqrt(a[r] / a[r].sum() * b[r] / b[r].sum()))) for r in range(REGIONS))
-    assert abs(distances[0, 1] - exact) < 0.02 and distances[0, 0] < 1e-6
+    # float32 products: the coefficient of equal histograms is 1 within a few units of float32's last place, so
+    # their distance, its square root's complement, is up to ~5e-4 (2.4e-4 on an AVX2 host, 0 on AVX-512 ones).
+    assert abs(distances[0, 1] - exact) < 0.02 and distances[0, 0] < 1e-3
     disjoint = np.zeros((REGIONS, REGION_BINS))
     disjoint[:, 0], other = 1.0, np.zeros((REGIONS, REGION_BINS))
     other[:, 1] = 1.0
