@@ -13,7 +13,6 @@ import time
 from collections import Counter
 from pathlib import Path
 
-import psutil
 import pytest
 
 from service.cli import listeners
@@ -75,14 +74,7 @@ def _listening(port: int) -> int:
 
 def _api_processes(app: Served) -> set[int]:
     """serve's uvicorn processes (spawned by multiprocessing; the workers and Redis are started otherwise)."""
-    pids = set()
-    for child in psutil.Process(app.process.pid).children():
-        try:
-            if child.status() != psutil.STATUS_ZOMBIE and "spawn_main" in " ".join(child.cmdline()):
-                pids.add(child.pid)
-        except psutil.Error:
-            pass  # exited between listing and inspection
-    return pids
+    return app.children("spawn_main")
 
 
 def _served_by(log_path: Path, prefix: str) -> Counter[int]:

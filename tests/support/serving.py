@@ -17,6 +17,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import psutil
+
 REPO = Path(__file__).resolve().parents[2]
 DEADLINE_S = 60.0
 STOP_TIMEOUT_S = 30.0
@@ -100,6 +102,18 @@ class Served:
 
     def stop(self) -> int:
         return stop(self.process)
+
+    def children(self, marker: str) -> set[int]:
+        """Live child processes of serve whose command line contains `marker` (`workers.main` for the workers,
+        `spawn_main` for uvicorn's API processes)."""
+        pids = set()
+        for child in psutil.Process(self.process.pid).children():
+            try:
+                if child.status() != psutil.STATUS_ZOMBIE and marker in " ".join(child.cmdline()):
+                    pids.add(child.pid)
+            except psutil.Error:
+                pass  # exited between listing and inspection
+        return pids
 
 
 def wait_for(

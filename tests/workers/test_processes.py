@@ -16,7 +16,6 @@ import threading
 import time
 from pathlib import Path
 
-import psutil
 import redis
 from rq import Queue, Retry
 from rq.job import Job, JobStatus
@@ -117,14 +116,7 @@ def test_serve_runs_everything_and_shuts_down_cleanly(tmp_path: Path, sessions: 
         assert app.http("GET", "/v1/cameras/lobby/calibration")[1]["status"] == "calibrated"
 
         def workers() -> set[int]:
-            alive = set()
-            for child in psutil.Process(app.process.pid).children():
-                try:
-                    if child.status() != psutil.STATUS_ZOMBIE and "workers.main" in " ".join(child.cmdline()):
-                        alive.add(child.pid)
-                except psutil.Error:
-                    pass  # exited between listing and inspection
-            return alive
+            return app.children("workers.main")
 
         _, count = default_process_split()  # serve's default on this machine (at least one)
         app.wait_for(lambda: len(workers()) == count, f"{count} live workers")
