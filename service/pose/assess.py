@@ -10,6 +10,13 @@ standing one, whose shoulder-to-ankle segment then poisons the calibration). Rul
   least `FRONT_MARGIN` of this person's height: nearer the camera, for a camera above the people) may be that
   person's limb; it is not trusted. The box is shrunk by `OCCLUDER_SHRINK` of its width on each side, so that a
   hand brushing a neighbour's box edge stays trusted.
+- Its own: a keypoint further outside the person's own box than `SIDE_MARGIN` of the box height at the sides, or
+  `END_MARGIN` above or below it, is a neighbour's limb or a guess, not trusted. Joints lie inside the silhouette
+  the detector boxed; MoveNet's square crop holds more than the box, and reads a neighbour's foot beside it as an
+  ankle (Town Centre frames 90 and 125: two walkers, each a `standing` person with one ankle on the foot of the
+  person beside them, 0.3 and 0.4 of their height outside their box) or a whole neighbour for a box around a
+  bicycle or a half-seen person (frame 90, the atrium). The ends get more room: on a steep view the shoulders of a
+  small person reach the top of a box drawn around a bent head.
 - Ankles need their leg: an ankle is trusted only with its knee, and in order down the body (hip above knee
   above ankle in the image, as for any camera looking down at people: the vertical vanishing point lies below).
   A hidden leg is guessed as a whole, so a guessed ankle rarely has a confident knee above it.
@@ -44,6 +51,8 @@ FRONT_MARGIN: Final = 0.05
 OCCLUDER_SHRINK: Final = 0.1
 LEG_TO_TORSO: Final = 1.0
 BOTTOM_EDGE_PX: Final = 2.0
+SIDE_MARGIN: Final = 0.05
+END_MARGIN: Final = 0.1
 ORDER_TOLERANCE: Final = 0.05
 """Slack of the hip-above-knee-above-ankle order, as a fraction of the box height."""
 
@@ -87,6 +96,10 @@ def assess_person(
     seen = np.asarray(scores, dtype=np.float64).reshape(17) >= MIN_SCORE
     if image_height_px is not None and box_xyxy[3] >= image_height_px - BOTTOM_EDGE_PX:
         seen[list(KNEES + ANKLES)] = False  # cut by the frame: the legs below it are guesses
+    left, top, right, bottom = (float(v) for v in box_xyxy)
+    side, end = SIDE_MARGIN * (bottom - top), END_MARGIN * (bottom - top)
+    seen &= (points[:, 0] >= left - side) & (points[:, 0] <= right + side)
+    seen &= (points[:, 1] >= top - end) & (points[:, 1] <= bottom + end)
     inside = np.zeros(17, dtype=bool)
     for left, top, right, bottom in np.asarray(occluders, dtype=np.float64).reshape(-1, 4):
         inside |= (points[:, 0] > left) & (points[:, 0] < right) & (points[:, 1] > top) & (points[:, 1] < bottom)

@@ -66,6 +66,22 @@ def test_keypoints_inside_the_box_of_someone_in_front_are_not_trusted() -> None:
     assert assess_frame(boxes, keypoints, scores)[0].posture == "standing"
 
 
+def test_a_keypoint_outside_its_own_box_is_not_trusted() -> None:
+    """A neighbour's foot beside the box is not this person's ankle; a joint at the box's edge is."""
+    height_px = BOX[3] - BOX[1]
+    beside = STANDING.copy()
+    beside[15] = [BOX[0] - 0.3 * height_px, 528]  # the left ankle on the foot of someone walking alongside
+    result = assess_person(beside, SEEN, BOX, np.zeros((0, 4)))
+    assert not result.trusted[15] and result.trusted[16] and result.posture == "partial"
+    edge = STANDING.copy()
+    edge[13] = [BOX[0] - 0.04 * height_px, 471]  # a knee just past the box's side: the box is loose by pixels
+    edge[5] = [478, BOX[1] - 0.08 * height_px]  # a shoulder above a box drawn round a bent head (steep views)
+    assert assess_person(edge, SEEN, BOX, np.zeros((0, 4))).posture == "standing"
+    high = STANDING.copy()
+    high[5:7, 1] = BOX[1] - 0.2 * height_px  # shoulders well above the box: someone else's
+    assert assess_person(high, SEEN, BOX, np.zeros((0, 4))).posture == "unknown"
+
+
 def test_folded_legs_are_seated_and_no_shoulders_is_unknown() -> None:
     seated = STANDING.copy()
     seated[13:15] = [[470, 425], [530, 425]]  # knees out to the sides at hip height
@@ -125,6 +141,39 @@ def test_no_guessed_ankle_and_no_impossible_distance_on_town_centre_frame_54(
     result = measure_people(rows, calibration, distance_threshold_m=1.8288).result
     closest = min(p.distance_m for p in result.pairs if p.distance_m is not None)
     assert closest > 0.3
+
+
+@pytest.mark.parametrize(
+    ("folder", "name"),
+    [
+        ("oxford_town_centre", "clip_000090.jpg"),
+        ("oxford_town_centre", "clip_000125.jpg"),
+        ("mot3d_atrium", "frame_49678.jpg"),
+    ],
+)
+def test_every_person_is_placed_inside_their_own_box(
+    folder: str, name: str, lightning: TopDownPose, town_dir: Path
+) -> None:
+    """Frames where a crop read the person beside the box: Town Centre 90 and 125, two walkers each with an ankle on
+    the foot of the one alongside (`standing`, calibration evidence); 90, a box round a bicycle placed at the shoulder
+    of the man wheeling it; atrium 49678, the box of a walker by the table read as the person left of it, who lost
+    his own reading as its copy. Each point a person is placed by must lie in or at their own box."""
+    image = cv2.imread(str(town_dir.parent / folder / "frames" / name))
+    assert image is not None
+    found = lightning(image)
+    rows = people_from_detections(found, (image.shape[1], image.shape[0]))
+    placed = 0
+    for person, row in zip(found, rows, strict=True):
+        left, top, right, bottom = person.box_xyxy_px
+        side, end = 0.05 * (bottom - top), 0.1 * (bottom - top)
+        for point in (row.shoulder_px, row.ankle_px):
+            if point is not None:
+                placed += 1
+                assert left - side <= point[0] <= right + side and top - end <= point[1] <= bottom + end, (
+                    person.box_xyxy_px,
+                    point,
+                )
+    assert placed >= 10
 
 
 def test_legs_cut_by_the_bottom_of_the_frame_are_not_trusted() -> None:
