@@ -177,9 +177,11 @@ def test_image_folder_with_a_known_focal_length(
     assert "truncated" in result.output and "clip_000127.png" in result.output
     cal = json.loads((out / "calibration.json").read_text())
     assert cal["fx_px"] == pytest.approx(truth.fx) and cal["options"]["focal_px"] == pytest.approx(truth.fx)
-    # Eight frames, ~40 usable people: the normal's own 1-sigma is ~1.6 deg, and detector changes that move recall
-    # by a person or two moved it between 2.3 and 4.6 deg (docs/benchmarks/pose.md, "Votes across regions").
-    assert _angle_deg(np.array(cal["normal"]), truth.ground_normal) < 3.0 * cal["uncertainty"]["normal_std_deg"] < 6.0
+    # Eight frames, ~40 usable people: the normal's own 1-sigma is 1.6-2.0 deg, and detector changes that move recall
+    # by a person or two moved it between 2.3 and 4.6 deg (docs/benchmarks/pose.md, "Votes across regions"; 4.6 ->
+    # 3.7 deg off, 36 people used instead of 42, sigma 2.00 -> 2.02 deg, when keypoints outside their own box lost
+    # their trust: "A keypoint outside its own box").
+    assert _angle_deg(np.array(cal["normal"]), truth.ground_normal) < 3.0 * cal["uncertainty"]["normal_std_deg"] < 7.5
     assert cal["evidence"]["frames"] == len(FOLDER_FRAMES) and cal["evidence"]["frames_skipped"] == 2
     assert cal["source"]["kind"] == "images" and cal["options"]["threshold_m"] == 2.0
     assert cal["warnings"] == []  # --fps gave the images their times
