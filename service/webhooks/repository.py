@@ -226,11 +226,21 @@ class Claim:
     body: bytes
 
 
+@dataclass(frozen=True)
+class Leased:
+    """The attempt before is still out, or its worker died and its lease has not run out: for `left_s` more seconds,
+    measured on the clock the claim was judged by (a second reading could find the lease just over, and the attempt
+    neither taken nor waited for)."""
+
+    left_s: float
+
+
 def claim_attempt(
     session: Session, delivery_id: uuid.UUID, attempt: int, *, lease_s: float, now: datetime | None = None
-) -> Claim | str:
+) -> Claim | Leased | str:
     """Take attempt number `attempt` of a delivery, or say why not: `gone` (deleted), `skipped` (no longer
-    pending, that attempt already taken, or another attempt still out) or `paused` (subscription disabled).
+    pending, or that attempt already taken), `Leased` (the attempt before still holds its lease) or `paused`
+    (subscription disabled).
 
     The claim is a conditional UPDATE (attempts must still be attempt - 1, and no lease running), so of two jobs
     racing for one attempt only one sends. An attempt left `sending` by a worker that died is closed as
@@ -243,7 +253,7 @@ def claim_attempt(
     if delivery.status != "pending" or delivery.attempts != attempt - 1:
         return "skipped"
     if delivery.lease_until is not None and delivery.lease_until > now:
-        return "skipped"
+        return Leased((delivery.lease_until - now).total_seconds())
     subscription = session.get(WebhookSubscription, delivery.subscription_id)
     event = session.get(WebhookEvent, delivery.event_id)
     if subscription is None or event is None:
@@ -273,15 +283,6 @@ def claim_attempt(
     if subscription.previous_secret and subscription.previous_secret_until and subscription.previous_secret_until > now:
         secrets.append(subscription.previous_secret)
     return Claim(delivery_id, attempt, subscription.url, tuple(secrets), str(event.id), event.body.encode())
-
-
-def previous_lease_until(session: Session, delivery_id: uuid.UUID, attempt: int) -> datetime | None:
-    """When the lease of the attempt before `attempt` runs out, if that lease is all that may hold `attempt` back
-    (the delivery still pending, with attempt - 1 made); None otherwise."""
-    delivery = session.get(WebhookDelivery, delivery_id)
-    if delivery is None or delivery.status != "pending" or delivery.attempts != attempt - 1:
-        return None
-    return delivery.lease_until
 
 
 @dataclass(frozen=True)

@@ -496,6 +496,27 @@ def test_a_worker_that_died_mid_attempt_leaves_an_interrupted_attempt_and_the_ne
     assert "interrupted" in (log[0].error or "")
 
 
+def test_an_attempt_that_starts_just_before_a_dead_attempts_lease_ends_waits_it_out(
+    sessions: sessionmaker[Session], api: TestClient, receiver: Receiver
+) -> None:
+    """RQ schedules to the whole second, so the attempt queued for the end of a killed worker's lease may start
+    before it ends: within the slack it waits and sends; with longer left, it leaves the delivery to its time."""
+    subscription = subscribe(api, receiver)
+    [soon, later] = _raise_events(sessions, subscription["id"], 2)
+    now = datetime.now(UTC)
+    with sessions() as session, session.begin():  # attempts 1 claimed by a worker that was then killed
+        assert isinstance(
+            store.claim_attempt(session, soon, 1, lease_s=61, now=now - timedelta(seconds=60)), store.Claim
+        )
+        assert isinstance(store.claim_attempt(session, later, 1, lease_s=60, now=now), store.Claim)
+    started = time.monotonic()
+    assert deliver_webhook(str(later), 2) == "skipped"
+    assert deliver_webhook(str(soon), 2) == "delivered"
+    assert 0.5 < time.monotonic() - started < 5.0  # waited out the second the lease had left
+    assert [(a.number, a.outcome) for a in _attempts(sessions, soon)] == [(1, "retry"), (2, "delivered")]
+    assert [(a.number, a.outcome) for a in _attempts(sessions, later)] == [(1, "sending")]
+
+
 # --------------------------------------------------------------------------------------------------- deletions
 
 

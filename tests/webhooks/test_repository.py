@@ -73,7 +73,8 @@ def test_an_attempt_is_claimed_once_and_leased(engine: Engine) -> None:
         assert isinstance(claim, store.Claim) and claim.message_id and claim.body == BODY.encode()
     with sessions() as session, session.begin():
         assert store.claim_attempt(session, delivery_id, 1, lease_s=60, now=NOW) == "skipped"  # taken
-        assert store.claim_attempt(session, delivery_id, 2, lease_s=60, now=NOW) == "skipped"  # leased
+        leased = store.claim_attempt(session, delivery_id, 2, lease_s=60, now=NOW + timedelta(seconds=45))
+        assert leased == store.Leased(15.0)  # attempt 1 is out: its lease has 15 s to run
         assert store.claim_attempt(session, uuid.uuid4(), 1, lease_s=60, now=NOW) == "gone"
     with sessions() as session:
         [due] = store.pending_deliveries(session)
