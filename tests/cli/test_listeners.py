@@ -11,6 +11,7 @@ import signal
 import socket
 import time
 from collections import Counter
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -121,6 +122,27 @@ def _get(sock: socket.socket, request_id: str) -> bool:
     return b"\r\nconnection: close\r\n" in data.lower()
 
 
+def _request_all(cameras: list[socket.socket], port: int, prefix: str) -> None:
+    """One request on each camera's connection; a camera whose answer closes its connection connects again."""
+    for index, camera in enumerate(cameras):
+        if _get(camera, f"{prefix}{index}"):
+            camera.close()
+            cameras[index] = socket.create_connection(("127.0.0.1", port), timeout=30)
+
+
+def _post_while(cameras: list[socket.socket], port: int, condition: Callable[[], bool], what: str) -> None:
+    """Wait for `condition` with every camera requesting twice a second: a camera posts on, and a connection left
+    idle is closed by uvicorn after 5 s (which on a loaded machine outlasted the replacement of a killed process
+    and failed the test below)."""
+    deadline = time.monotonic() + 60.0
+    sent = 0
+    while not condition():
+        assert time.monotonic() < deadline, f"timed out after 60 s waiting for {what}"
+        _request_all(cameras, port, f"meanwhile-{sent}-")
+        sent += 1
+        time.sleep(0.5)
+
+
 def test_connections_that_all_reached_one_process_spread_once_recycled(tmp_path: Path) -> None:
     """While uvicorn replaces a killed API process, the cameras that reconnect all reach the other one; closing
     each connection after a few requests (keep_alive_max_requests) lets the kernel place them again."""
@@ -136,13 +158,10 @@ def test_connections_that_all_reached_one_process_spread_once_recycled(tmp_path:
         try:
             for index, camera in enumerate(cameras):
                 assert not _get(camera, f"first-{index}")
-            app.wait_for(lambda: _served_by(log_path, "first-") == Counter({survivor: 40}), "40 on the survivor")
-            app.wait_for(lambda: len(_api_processes(app)) == 2 and _listening(port) == 2, "a replacement listening")
+            _post_while(cameras, port, lambda: _served_by(log_path, "first-") == Counter({survivor: 40}), "40 lines")
+            _post_while(cameras, port, lambda: len(_api_processes(app)) == 2 and _listening(port) == 2, "a replacement")
             for round_ in range(4):  # each connection's 4th answer closes it; the camera reconnects
-                for index, camera in enumerate(cameras):
-                    if _get(camera, f"round{round_}-{index}"):
-                        camera.close()
-                        cameras[index] = socket.create_connection(("127.0.0.1", port), timeout=30)
+                _request_all(cameras, port, f"round{round_}-")
             for index, camera in enumerate(cameras):
                 _get(camera, f"last-{index}")
             app.wait_for(lambda: sum(_served_by(log_path, "last-").values()) == 40, "the last requests' log lines")
