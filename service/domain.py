@@ -11,12 +11,16 @@ import uuid
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, Final, Literal, Protocol
 
 if TYPE_CHECKING:
     from service.geometry import Calibration
 
 Point = tuple[float, float]
+Posture = Literal["standing", "seated", "partial", "unknown"]
+"""The pose pipeline's verdict on a person found in an image (service.pose.assess): `standing` (calibration
+evidence), `seated` (legs seen but folded), `partial` (lower body not seen) or `unknown` (shoulders not seen)."""
+POSTURES: Final[tuple[Posture, ...]] = ("standing", "seated", "partial", "unknown")
 METRES_PER_FOOT = 0.3048  # the international foot: thresholds and labels may be given in feet
 # Lengths converted between feet and metres are rounded to this many decimals (nanometres, or nano-feet): in binary
 # floating point 6 ft would otherwise be 1.8288000000000002 m, and that is what clients would read back.
@@ -60,6 +64,14 @@ class PersonIn:
     track_id: str | None = None
     """The client's id for this person across the camera's frames (from its tracker): one id, one individual for
     calibration. Only posted keypoint frames carry one."""
+    posture: Posture | None = None
+    """The pose pipeline's verdict, for people found in images; None for posted keypoints (the client's pose model
+    gave no posture). Measuring places a `seated` or `partial` person from their shoulders at their own height."""
+    placed_from_box: bool = False
+    """`ankle_px` is the bottom of the detector box, not the ankles (service.frames.keypoints.place_from_boxes):
+    measured with the wider sigma of that cue, never evidence."""
+    static: bool = False
+    """Found at one of the camera's static spots (a mannequin): measured, in no violation, never evidence."""
 
 
 @dataclass(frozen=True)
@@ -79,9 +91,13 @@ class StoredCentres(Protocol):
     ankle_x_px: float | None
     ankle_y_px: float | None
     unusable_reason: str | None
-    """Why the person is not calibration evidence (None: they are); measuring reads the posture from it."""
+    """Why the person is not calibration evidence (None: they are), in words."""
     client_track_id: str | None
     """The client's track id, as posted (None when none was): echoed with the person's result."""
+    posture: str | None
+    """`PersonIn.posture` as stored."""
+    placed_from_box: bool
+    static: bool
 
 
 def track_id_of(person: PersonIn | StoredCentres) -> str | None:

@@ -11,6 +11,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, Field
 
+from service.domain import Posture
+
 CONVENTIONS = (
     "pixels: origin top-left, x right, y down; camera frame: x right, y down, z forward (metres); ground plane: "
     "normal . X + rho_m = 0 with the unit normal pointing up, rho_m = camera height above the ground; ground_m: "
@@ -117,6 +119,10 @@ class PersonRecord(BaseModel):
     keypoints: list[tuple[float, float, float]] | None = Field(description="COCO-17 [x_px, y_px, score].")
     shoulder_px: tuple[float, float] | None = Field(description="Shoulder centre (null when not confidently seen).")
     ankle_px: tuple[float, float] | None = Field(description="Ankle centre (null when not confidently seen).")
+    posture: Posture | None = Field(
+        description="The pose's verdict: `standing` (calibration evidence), `seated` (legs seen but folded), `partial` "
+        "(lower body not seen) or `unknown` (shoulders not seen)."
+    )
     usable: bool = Field(description="Whether this person is calibration evidence.")
     unusable_reason: str | None
     calibration: CalibrationRole | None = Field(

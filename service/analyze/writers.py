@@ -59,6 +59,7 @@ PEOPLE_COLUMNS = (
     "shoulder_y_px",
     "ankle_x_px",
     "ankle_y_px",
+    "posture",
     "usable",
     "unusable_reason",
     "calibration",
@@ -208,6 +209,7 @@ def frame_record(analysis: Analysis, position: int, frame: AnalyzedFrame, result
                 else [(*_rounded(k[:2], 2), round(float(k[2]), 4)) for k in person.keypoints],  # type: ignore[misc]
                 shoulder_px=person.shoulder_px,
                 ankle_px=person.ankle_px,
+                posture=person.posture,
                 usable=person.unusable_reason is None,
                 unusable_reason=person.unusable_reason,
                 calibration=analysis.roles.get((position, index)),
@@ -265,6 +267,7 @@ def _people_rows(record: FrameRecord) -> Iterable[Sequence[object]]:
             *box,
             *shoulder,
             *ankle,
+            p.posture,
             p.usable,
             p.unusable_reason,
             p.calibration,

@@ -131,7 +131,10 @@ def _observation_rows(camera: Camera, frame_id: uuid.UUID, people: Sequence[Pers
                 "appearance": person.appearance,
                 "client_track_id": person.track_id,
                 "usable": reason is None,
-                "unusable_reason": reason,
+                "unusable_reason": None if reason is None else clip_reason(reason),
+                "posture": person.posture,
+                "placed_from_box": person.placed_from_box,
+                "static": person.static,
                 "cell": cell,
                 "sample_key": None,  # keyed in bulk by the calibration job: key_new_evidence
             }

@@ -25,8 +25,8 @@ frame: which keypoints are trustworthy (seen, not inside the box of a person in 
 knee) and the posture. `person_from_detection` builds centres from trusted keypoints only, so an ankle guessed
 behind someone else never places a person (they are placed from their shoulders, or not at all), and only
 `standing` people can be evidence: `seated` ones (legs seen but folded) and `partial` ones (lower body not seen)
-are measured, never calibrated on. Their reasons start with `SEATED_REASON` / `PARTIAL_REASON`, which is how the
-store and the measuring side can tell them apart until the store keeps the posture itself.
+are measured, never calibrated on. The store keeps the posture (`PersonIn.posture`), which measuring reads; the
+reasons (`SEATED_REASON`, `PARTIAL_REASON`, ...) say the same in words.
 
 One rule needs the whole frame: a top-down pipeline runs the pose model on each detection's crop, and two
 detections can yield the same pose, either because the detector boxed one person twice (a whole-body and a
@@ -47,7 +47,7 @@ A person the pose cannot put on the ground (no trusted ankles) still counts in d
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
@@ -165,7 +165,7 @@ def person_from_detection(person: DetectedPerson, image_size_px: tuple[int, int]
             reason = SEATED_REASON
         elif person.posture == "partial":
             reason = PARTIAL_REASON
-        row = replace(row, shoulder_px=shoulder, ankle_px=ankle, unusable_reason=reason)
+        row = replace(row, shoulder_px=shoulder, ankle_px=ankle, unusable_reason=reason, posture=person.posture)
     return replace(
         row,
         box_px=tuple(float(v) for v in person.box_xyxy_px),
@@ -222,12 +222,8 @@ def box_bottom_problem(
 
 
 def as_static(person: PersonIn) -> PersonIn:
-    """The person flagged static (found at a static spot: no evidence, no violation); one placed from their box
-    keeps saying so after the static reason, so that measuring still gives them the box's placement and sigma."""
-    reason = STATIC_REASON
-    if (person.unusable_reason or "").startswith(BOX_REASON):
-        reason = f"{STATIC_REASON}; {BOX_REASON}"
-    return replace(person, unusable_reason=reason)
+    """The person flagged static (found at a static spot: no evidence, no violation), placed as before."""
+    return replace(person, unusable_reason=STATIC_REASON, static=True)
 
 
 def person_from_centres(
@@ -281,34 +277,35 @@ def people_from_detections(found: Sequence[DetectedPerson], image_size_px: tuple
             ankle_px=None,
             unusable_reason=f"same pose as person {original} (a repeated detection, or a neighbour's pose)",
         )
-    return place_from_boxes(people, image_size_px)
+    return place_from_boxes(people, image_size_px, repeats=repeats)
 
 
-def place_from_boxes(people: Sequence[PersonIn], image_size_px: tuple[int, int]) -> list[PersonIn]:
+def place_from_boxes(
+    people: Sequence[PersonIn], image_size_px: tuple[int, int], *, repeats: Collection[int] = ()
+) -> list[PersonIn]:
     """People the pose could not put on the ground, placed from their detector box's bottom where it is a contact.
 
     A person without trusted ankles (shoulders not read, legs hidden or folded out of sight) is otherwise placed
     from their shoulders with a height prior, or not at all, and an unplaced person never takes part in a
     violation. The box's bottom centre is where a standing or seated person meets the ground when nothing cuts
     it (`box_bottom_problem`): it becomes their ankle point, moved up by `BOX_ANKLE_OFFSET` of the box height
-    (the feet reach below the ankle centre), with `BOX_REASON`, so that they are measured, with the wider sigma
+    (the feet reach below the ankle centre), `placed_from_box`, so that they are measured, with the wider sigma
     of the cue (service/frames/measure.py), and never calibrated on. On Town Centre the box bottom places a
     person 0.15-0.17 m from their ankles (median by size; the shoulders at the height prior: 0.17-0.28 m), so it
     replaces the shoulders too, unless the shoulders sit low in the box (`BOX_MIN_SHOULDER_DROP`: the box ends
-    at a wall or a table, not at the feet). A repeated pose (a phantom of one person), a box the detector doubts with
-    nothing the pose vouches for (`BOX_MIN_SCORE`) and a box that is not a contact keep what they had:
-    shoulders, or nothing. Measured on Town Centre: docs/benchmarks/pose.md, "Placing the people the pose
+    at a wall or a table, not at the feet). A repeated pose (`repeats`: a phantom of one person), a box the
+    detector doubts with nothing the pose vouches for (`BOX_MIN_SCORE`) and a box that is not a contact keep what
+    they had: shoulders, or nothing. Measured on Town Centre: docs/benchmarks/pose.md, "Placing the people the pose
     cannot read".
     """
     boxes = [person.box_px for person in people]
     placed = []
     for index, person in enumerate(people):
         box = person.box_px
-        reason = person.unusable_reason or ""
         if (
             person.ankle_px is not None
             or box is None
-            or reason.startswith("same pose as person")
+            or index in repeats
             or (person.shoulder_px is None and (person.detection_score or 0.0) < BOX_MIN_SCORE)
         ):
             placed.append(person)
@@ -326,5 +323,5 @@ def place_from_boxes(people: Sequence[PersonIn], image_size_px: tuple[int, int])
             placed.append(person)
             continue
         contact = ((left + right) / 2.0, bottom - BOX_ANKLE_OFFSET * (bottom - top))
-        placed.append(replace(person, ankle_px=contact, unusable_reason=BOX_REASON))
+        placed.append(replace(person, ankle_px=contact, unusable_reason=BOX_REASON, placed_from_box=True))
     return placed

@@ -20,7 +20,6 @@ import numpy as np
 import pydantic_core
 
 from service.domain import PersonIn, StoredCentres, ViolationIn, centres, track_id_of
-from service.frames.keypoints import BOX_REASON, PARTIAL_REASON, SEATED_REASON, STATIC_REASON
 from service.frames.schemas import FrameResult
 from service.geometry import Calibration, Measurements, measure_many
 from service.geometry.priors import DEFAULT_HEIGHT_STD_M
@@ -38,7 +37,6 @@ PARTIAL_HEIGHT_STD_M = 0.3
 BOX_CONTACT_STD_FRACTION = 0.06
 
 _NAN_POINT = (math.nan, math.nan)
-_BOX_PREFIXES = (BOX_REASON, f"{STATIC_REASON}; {BOX_REASON}")
 
 
 @dataclass(frozen=True)
@@ -74,19 +72,16 @@ def _ground_axes(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _shoulder_priors(people: Sequence[StoredCentres | PersonIn]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Each person's shoulder height (fraction of the prior) and its sigma, and the sigma of their ground contact
-    (fraction of their standing height in pixels: not 0 for a box-bottom contact), from the verdict on them."""
+    (fraction of their standing height in pixels: not 0 for a box-bottom contact), from the pose's verdict."""
     scale = np.ones(len(people))
     std_m = np.full(len(people), DEFAULT_HEIGHT_STD_M)
     contact = np.zeros(len(people))
     for index, person in enumerate(people):
-        reason = person.unusable_reason
-        if not reason:  # most people: calibration evidence, standing
-            continue
-        if _from_box(reason):
+        if person.placed_from_box:
             contact[index] = BOX_CONTACT_STD_FRACTION
-        elif reason.startswith(SEATED_REASON):
+        elif person.posture == "seated":
             scale[index], std_m[index] = SEATED_HEIGHT_FRACTION, SEATED_HEIGHT_STD_M
-        elif reason.startswith(PARTIAL_REASON):
+        elif person.posture == "partial":
             std_m[index] = PARTIAL_HEIGHT_STD_M
     return scale, std_m, contact
 
@@ -95,13 +90,7 @@ def _placed_from(person: StoredCentres | PersonIn, has_bottom: bool) -> str:
     """`ankles`, `box` (the detector box's bottom, service.frames.keypoints.place_from_boxes) or `shoulders`."""
     if not has_bottom:
         return "shoulders"
-    reason = person.unusable_reason
-    return "box" if reason and _from_box(reason) else "ankles"
-
-
-def _from_box(reason: str) -> bool:
-    """Whether the verdict says the person stands on their box's bottom (also when flagged static after it)."""
-    return reason.startswith(_BOX_PREFIXES)
+    return "box" if person.placed_from_box else "ankles"
 
 
 def measure_people(
@@ -168,7 +157,7 @@ def measure_frames(
     positions = m.points_bottom
     placed = np.all(np.isfinite(positions), axis=1)
     # Per person and per pair as plain Python values for the whole chunk; each frame's document takes its slices.
-    static = [(person.unusable_reason or "").startswith(STATIC_REASON) for person in everyone]
+    static = [bool(person.static) for person in everyone]
     placed_from = [
         _placed_from(person, bottom is not None) if is_placed else None
         for person, (_, bottom), is_placed in zip(everyone, points, placed.tolist(), strict=True)

@@ -120,8 +120,9 @@ def frames_observations(session: Session, frame_ids: Sequence[uuid.UUID]) -> dic
 
 def frames_points(session: Session, frame_ids: Sequence[uuid.UUID]) -> dict[uuid.UUID, list[Row[Any]]]:
     """Several frames' people as light rows of their centres (`shoulder_x_px` ... `ankle_y_px`), whether they
-    are usable evidence (`usable`) and why not (`unusable_reason`, the posture measuring reads) and the client's
-    track id (`client_track_id`, echoed in the result), posted order.
+    are usable evidence (`usable`) and why not (`unusable_reason`), what measuring reads of the verdict
+    (`posture`, `placed_from_box`, `static`) and the client's track id (`client_track_id`, echoed in the result),
+    posted order.
 
     What measuring needs, and all it needs: building full ORM objects for a worker's batch (a thousand people)
     cost more than measuring them.
@@ -140,6 +141,9 @@ def frames_points(session: Session, frame_ids: Sequence[uuid.UUID]) -> dict[uuid
             columns.usable,
             columns.unusable_reason,
             columns.client_track_id,
+            columns.posture,
+            columns.placed_from_box,
+            columns.static,
         )
         .where(columns.frame_id.in_(frame_ids))
         .order_by(columns.frame_id, columns.person_index)

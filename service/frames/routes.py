@@ -461,6 +461,7 @@ def _detection_out(person: Observation) -> DetectedPersonOut:
         keypoints=None if keypoints is None else [(k[0], k[1], k[2]) for k in keypoints],
         shoulder_px=None if None in shoulder else shoulder,  # type: ignore[arg-type]
         ankle_px=None if None in ankle else ankle,  # type: ignore[arg-type]
+        posture=person.posture,  # type: ignore[arg-type]
         usable=person.usable,
         unusable_reason=person.unusable_reason,
     )

@@ -10,6 +10,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 from pydantic_core import PydanticCustomError
 
 from service.cameras.schemas import MAX_IMAGE_SIDE_PX
+from service.domain import Posture
 from service.http.schemas import CLIENT_FRAME_ID_PATTERN, CLIENT_TRACK_ID_PATTERN, Score, StrictModel, Timestamp
 
 COCO_KEYPOINTS = 17
@@ -200,6 +201,12 @@ class DetectedPersonOut(BaseModel):
     keypoints: list[tuple[float, float, float]] | None = Field(description="COCO-17 [x_px, y_px, score].")
     shoulder_px: tuple[float, float] | None
     ankle_px: tuple[float, float] | None
+    posture: Posture | None = Field(
+        description="The pose's verdict: `standing` (calibration evidence), `seated` (legs seen but folded: placed "
+        "at a seated height), `partial` (lower body not seen: placed from the shoulders) or `unknown` (shoulders not "
+        "seen: placed from the detector box's bottom where it is a ground contact, else not at all). Null for "
+        "people stored before the service kept it, unless their reason said."
+    )
     usable: bool = Field(description="Whether this person counts as calibration evidence.")
     unusable_reason: str | None
 

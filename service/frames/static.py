@@ -65,12 +65,21 @@ class _Static:
     ankle_x_px: float | None
     ankle_y_px: float | None
     client_track_id: str | None
+    posture: str | None
+    placed_from_box: bool
     unusable_reason: str | None = STATIC_REASON
+    static: bool = True
 
     @classmethod
     def of(cls, person: Any) -> _Static:
         return cls(
-            person.shoulder_x_px, person.shoulder_y_px, person.ankle_x_px, person.ankle_y_px, person.client_track_id
+            person.shoulder_x_px,
+            person.shoulder_y_px,
+            person.ankle_x_px,
+            person.ankle_y_px,
+            person.client_track_id,
+            person.posture,
+            person.placed_from_box,
         )
 
 
@@ -130,13 +139,13 @@ def record_static_marks(session: Session, camera: Camera, marks: StaticMarks, st
         session.execute(
             update(Observation)
             .where(*person, Observation.usable == false())
-            .values(unusable_reason=STATIC_REASON)
+            .values(unusable_reason=STATIC_REASON, static=True)
             .execution_options(synchronize_session=False)
         )
         withdrawn += session.execute(
             update(Observation)
             .where(*person, Observation.usable == true(), Observation.epoch == camera.epoch)
-            .values(usable=False, unusable_reason=STATIC_REASON)
+            .values(usable=False, unusable_reason=STATIC_REASON, static=True)
             .execution_options(synchronize_session=False)
         ).rowcount
     if withdrawn:

@@ -39,12 +39,11 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Final, Literal
+from typing import Final
 
 import numpy as np
 
-Posture = Literal["standing", "seated", "partial", "unknown"]
-POSTURES: Final[tuple[Posture, ...]] = ("standing", "seated", "partial", "unknown")
+from service.domain import Posture
 
 MIN_SCORE: Final = 0.3
 FRONT_MARGIN: Final = 0.05

@@ -8,15 +8,16 @@ Coordinates are image pixels of the frame that was passed in (origin top-left, x
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Literal, Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
+
+from service.domain import Posture
 
 if TYPE_CHECKING:
     from service.geometry import Calibration
 
 COCO17_KEYPOINTS = 17
-Posture = Literal["standing", "seated", "partial", "unknown"]
 
 
 @dataclass(frozen=True)

@@ -69,6 +69,7 @@ CLIENT_FRAME_ID_MAX_LENGTH = 128
 # service.http.schemas.CLIENT_TRACK_ID_MAX_LENGTH (not imported: the store does not depend on the API).
 CLIENT_TRACK_ID_MAX_LENGTH = 64
 REASON_MAX_LENGTH = 200
+POSTURE_MAX_LENGTH = 8
 API_KEY_ID_LENGTH = 12
 API_KEY_NAME_MAX_LENGTH = 100
 API_KEY_DIGEST_LENGTH = 64
@@ -287,6 +288,11 @@ class Observation(Base):
     client_track_id: Mapped[str | None] = mapped_column(String(CLIENT_TRACK_ID_MAX_LENGTH))
     usable: Mapped[bool] = mapped_column(Boolean)
     unusable_reason: Mapped[str | None] = mapped_column(String(REASON_MAX_LENGTH))
+    # What measuring reads of the verdict (service.domain.PersonIn): the pose's posture (None for posted keypoints),
+    # whether the ankle point is a detector box's bottom, whether the person stands at a static spot.
+    posture: Mapped[str | None] = mapped_column(String(POSTURE_MAX_LENGTH))
+    placed_from_box: Mapped[bool] = mapped_column(Boolean, default=False, server_default=text("false"))
+    static: Mapped[bool] = mapped_column(Boolean, default=False, server_default=text("false"))
     cell: Mapped[int | None] = mapped_column(Integer)
     # The camera's calibration epoch when the person was stored (or the new one, for a frame of a detected move's
     # detection window): only the camera's current epoch feeds solves.

@@ -71,7 +71,7 @@ def test_only_a_box_the_detector_believes_stands_in_front() -> None:
     suitcase = _unread((1782.0, 448.0, 1824.0, 604.0), 0.44)
     assert box_bottom_problem(owner.box_px, [suitcase.box_px], IMAGE_SIZE) is not None  # type: ignore[arg-type]
     placed = place_from_boxes([owner, suitcase], IMAGE_SIZE)
-    assert placed[0].unusable_reason == BOX_REASON and placed[0].ankle_px is not None
+    assert placed[0].unusable_reason == BOX_REASON and placed[0].placed_from_box and placed[0].ankle_px is not None
     confident = place_from_boxes([owner, replace(suitcase, detection_score=0.6)], IMAGE_SIZE)
     assert confident[0].ankle_px is None
 
@@ -101,11 +101,13 @@ def test_unread_people_with_a_clear_box_are_placed_from_it_and_are_never_evidenc
         box_px=(300.0, 300.0, 360.0, 500.0),
         detection_score=0.8,
     )
+    assert place_from_boxes([repeat], IMAGE_SIZE)[0].placed_from_box  # a clear box, unless known to be a repeat
     # A box the detector doubts (score 0.4): on Town Centre such boxes are rarely pedestrians.
     doubtful = replace(unread, box_px=(1300.0, 400.0, 1380.0, 640.0), detection_score=0.4)
-    placed = place_from_boxes([unread, behind, in_front, walled, repeat, doubtful], IMAGE_SIZE)
+    placed = place_from_boxes([unread, behind, in_front, walled, repeat, doubtful], IMAGE_SIZE, repeats={4})
     contact = (940.0, 640.0 - BOX_ANKLE_OFFSET * 240.0)
     assert placed[0].ankle_px == pytest.approx(contact) and placed[0].unusable_reason == BOX_REASON
+    assert [person.placed_from_box for person in placed] == [True] + [False] * 5
     assert placed[1] == behind  # its box bottom lies inside the box of the person in front: shoulders only
     assert placed[2] == in_front  # trusted ankles are kept
     assert placed[3] == walled and placed[4] == repeat and placed[5] == doubtful
@@ -118,7 +120,10 @@ def test_a_box_placed_person_counts_in_violations_with_a_wider_sigma() -> None:
     ankles = [tuple(map(float, b)) for b in scene.bottoms_px[:3]]
     tops = [tuple(map(float, t)) for t in scene.tops_px[:3]]
     by_ankles = [PersonIn(shoulder_px=t, ankle_px=a) for t, a in zip(tops, ankles, strict=True)]  # type: ignore[arg-type]
-    by_box = [by_ankles[0], *(PersonIn(shoulder_px=None, ankle_px=a, unusable_reason=BOX_REASON) for a in ankles[1:])]  # type: ignore[arg-type]
+    by_box = [
+        by_ankles[0],
+        *(PersonIn(shoulder_px=None, ankle_px=a, unusable_reason=BOX_REASON, placed_from_box=True) for a in ankles[1:]),  # type: ignore[arg-type]
+    ]
     exact = measure_people(by_ankles, cal, distance_threshold_m=100.0, noise_px=1.0).result
     boxed = measure_people(by_box, cal, distance_threshold_m=100.0, noise_px=1.0).result
     assert [p.placed_from for p in boxed.people] == ["ankles", "box", "box"]
@@ -134,10 +139,10 @@ def test_a_static_box_placed_person_keeps_the_box_placement_and_raises_no_violat
     a, b = (tuple(map(float, p)) for p in scene.bottoms_px[:2])
     people = [
         PersonIn(shoulder_px=None, ankle_px=a),
-        PersonIn(shoulder_px=None, ankle_px=b, unusable_reason=BOX_REASON),
+        PersonIn(shoulder_px=None, ankle_px=b, unusable_reason=BOX_REASON, placed_from_box=True),
     ]  # type: ignore[arg-type]
     people[1] = as_static(people[1])
-    assert people[1].unusable_reason is not None and people[1].unusable_reason.startswith(STATIC_REASON)
+    assert people[1].unusable_reason == STATIC_REASON and people[1].static and people[1].placed_from_box
     result = measure_people(people, cal, distance_threshold_m=100.0).result
     assert [p.placed_from for p in result.people] == ["ankles", "box"] and result.people[1].static
     assert result.violations == []

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -79,7 +80,7 @@ def test_people_who_are_not_evidence_are_placed_measured_and_flagged_with_a_wide
     )
     # Person 1 sits: shoulders 0.78 of the standing height above their true ground point, ankles under a table.
     seated_shoulders = _shoulders_at(cal, ground[1], SEATED_HEIGHT_FRACTION * cal.height_m)
-    seated = PersonIn(shoulder_px=seated_shoulders, ankle_px=None, unusable_reason=SEATED_REASON)
+    seated = PersonIn(shoulder_px=seated_shoulders, ankle_px=None, unusable_reason=SEATED_REASON, posture="seated")
     read_as_standing = PersonIn(shoulder_px=seated_shoulders, ankle_px=None)
     result = measure_people([standing, seated, read_as_standing], cal, distance_threshold_m=THRESHOLD_M).result
     assert [p.placed_from for p in result.people] == ["ankles", "shoulders", "shoulders"]
@@ -89,7 +90,12 @@ def test_people_who_are_not_evidence_are_placed_measured_and_flagged_with_a_wide
     assert abs(by_pair[0, 2].distance_m - true_m) > 0.1  # the standing prior would not
 
     # Lower body unseen: standing or seated, so the standing prior with a sigma that covers both.
-    partial = PersonIn(shoulder_px=tuple(scene.tops_px[1]), ankle_px=None, unusable_reason=PARTIAL_REASON)  # type: ignore[arg-type]
+    partial = PersonIn(
+        shoulder_px=tuple(scene.tops_px[1]),  # type: ignore[arg-type]
+        ankle_px=None,
+        unusable_reason=PARTIAL_REASON,
+        posture="partial",
+    )
     upright = PersonIn(shoulder_px=tuple(scene.tops_px[1]), ankle_px=None)  # type: ignore[arg-type]
     result = measure_people([standing, partial, upright], cal, distance_threshold_m=THRESHOLD_M).result
     by_pair = {(p.i, p.j): p for p in result.pairs}
@@ -104,7 +110,10 @@ def test_a_partly_seen_person_close_to_another_is_a_violation() -> None:
     beside = ground + 0.8 * np.cross(cal.normal, [0.0, 0.0, 1.0]) / np.linalg.norm(np.cross(cal.normal, [0, 0, 1]))
     standing = PersonIn(shoulder_px=_shoulders_at(cal, ground, cal.height_m), ankle_px=_shoulders_at(cal, ground, 0))
     partial = PersonIn(
-        shoulder_px=_shoulders_at(cal, beside, cal.height_m), ankle_px=None, unusable_reason=PARTIAL_REASON
+        shoulder_px=_shoulders_at(cal, beside, cal.height_m),
+        ankle_px=None,
+        unusable_reason=PARTIAL_REASON,
+        posture="partial",
     )
     result = measure_people([standing, partial], cal, distance_threshold_m=THRESHOLD_M).result
     assert result.pairs[0].distance_m == pytest.approx(0.8, abs=1e-6)
@@ -122,7 +131,7 @@ def test_a_static_person_is_measured_but_in_no_violation() -> None:
     ]
     result = measure_people(people, cal, distance_threshold_m=THRESHOLD_M).result
     assert [(v.i, v.j) for v in result.violations] == [(0, 1)]
-    people[1] = PersonIn(shoulder_px=people[1].shoulder_px, ankle_px=people[1].ankle_px, unusable_reason=STATIC_REASON)
+    people[1] = replace(people[1], unusable_reason=STATIC_REASON, static=True)
     result = measure_people(people, cal, distance_threshold_m=THRESHOLD_M).result
     assert result.pairs[0].distance_m == pytest.approx(0.5, abs=1e-6)
     assert result.violations == [] and [p.static for p in result.people] == [False, True]

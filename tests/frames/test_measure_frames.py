@@ -18,8 +18,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from service.domain import PersonIn
-from service.frames.keypoints import BOX_REASON, PARTIAL_REASON, SEATED_REASON, STATIC_REASON
+from service.domain import POSTURES, PersonIn
 from service.frames.measure import (
     BOX_CONTACT_STD_FRACTION,
     PARTIAL_HEIGHT_STD_M,
@@ -46,7 +45,6 @@ CAL = replace(
         noise_px=1.2,
     ),
 )
-REASONS = [None, None, SEATED_REASON, PARTIAL_REASON, BOX_REASON, STATIC_REASON, f"{STATIC_REASON}; {BOX_REASON}"]
 
 
 def _frames(seed: int, sizes: list[int]) -> list[list[PersonIn]]:
@@ -59,12 +57,16 @@ def _frames(seed: int, sizes: list[int]) -> list[list[PersonIn]]:
             bottom = (float(rng.uniform(500, 800)), float(rng.uniform(450, 650)))
             top = (bottom[0] + float(rng.normal(0, 3)), bottom[1] - float(rng.uniform(80, 140)))
             seen = rng.integers(0, 5)
+            posture = rng.integers(0, len(POSTURES) + 1)  # the last: posted keypoints, no posture
             people.append(
                 PersonIn(
                     shoulder_px=None if seen == 0 else top,
                     ankle_px=None if seen in (0, 1) else bottom,
-                    unusable_reason=REASONS[rng.integers(0, len(REASONS))],
+                    unusable_reason=None if posture == 0 else "not evidence",
                     track_id=f"t{rng.integers(0, 100)}" if seen == 3 else None,
+                    posture=POSTURES[posture] if posture < len(POSTURES) else None,
+                    placed_from_box=bool(rng.integers(0, 4) == 0),
+                    static=bool(rng.integers(0, 5) == 0),
                 )
             )
         frames.append(people)
@@ -108,7 +110,7 @@ def test_pairs_and_violations_are_the_geometry_s_distances_within_each_frame(siz
         tops = [p.shoulder_px or (np.nan, np.nan) for p in people]
         bottoms = [p.ankle_px or (np.nan, np.nan) for p in people]
         m = measure(CAL, tops, bottoms, **_priors(people))
-        static = [(p.unusable_reason or "").startswith(STATIC_REASON) for p in people]
+        static = [p.static for p in people]
         expected_violations = []
         for pair in document["pairs"]:
             i, j = pair["i"], pair["j"]
@@ -127,10 +129,9 @@ def test_pairs_and_violations_are_the_geometry_s_distances_within_each_frame(siz
 
 def _priors(people: list[PersonIn]) -> dict[str, np.ndarray]:
     """The posture priors service.frames.measure gives each person, restated from its constants."""
-    reasons = [p.unusable_reason or "" for p in people]
-    box = [r.startswith(BOX_REASON) or r.startswith(f"{STATIC_REASON}; {BOX_REASON}") for r in reasons]
-    seated = [not b and r.startswith(SEATED_REASON) for r, b in zip(reasons, box, strict=True)]
-    partial = [not b and r.startswith(PARTIAL_REASON) for r, b in zip(reasons, box, strict=True)]
+    box = [p.placed_from_box for p in people]
+    seated = [not p.placed_from_box and p.posture == "seated" for p in people]
+    partial = [not p.placed_from_box and p.posture == "partial" for p in people]
     return {
         "height_scale": np.where(seated, SEATED_HEIGHT_FRACTION, 1.0),
         "height_std_m": np.where(
@@ -146,7 +147,7 @@ def test_a_frame_the_geometry_refuses_fails_alone() -> None:
     calibration = version_of(calibration_of(SCENE))
     t0 = datetime(2026, 3, 1, tzinfo=UTC)
     frames = [Frame(id=uuid.uuid4(), camera_id="cam-c", timestamp=t0) for _ in range(3)]
-    people = [[_row(p.shoulder_px, p.ankle_px, p.unusable_reason) for p in frame] for frame in _frames(7, [3, 2, 4])]
+    people = [[_row(p) for p in frame] for frame in _frames(7, [3, 2, 4])]
     people[1][1].shoulder_x_px = "not a number"
     outcomes = frame_outcomes(frames, people, camera, calibration)
     assert [o.status for o in outcomes] == ["done", "failed", "done"]
@@ -156,15 +157,17 @@ def test_a_frame_the_geometry_refuses_fails_alone() -> None:
         assert outcomes[index] == alone and outcomes[index].result is not None
 
 
-def _row(
-    shoulder: tuple[float, float] | None, ankle: tuple[float, float] | None, reason: str | None
-) -> SimpleNamespace:
+def _row(person: PersonIn) -> SimpleNamespace:
     """A stored person as service.frames.repository.frames_points reads it."""
+    shoulder, ankle = person.shoulder_px, person.ankle_px
     return SimpleNamespace(
         shoulder_x_px=None if shoulder is None else shoulder[0],
         shoulder_y_px=None if shoulder is None else shoulder[1],
         ankle_x_px=None if ankle is None else ankle[0],
         ankle_y_px=None if ankle is None else ankle[1],
-        unusable_reason=reason,
+        unusable_reason=person.unusable_reason,
         client_track_id=None,
+        posture=person.posture,
+        placed_from_box=person.placed_from_box,
+        static=person.static,
     )

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import threading
 import uuid
@@ -17,8 +18,11 @@ from service.cameras.repository import CameraNotFoundError
 from service.domain import FrameOutcome, PersonIn
 from service.frames import ingest
 from service.frames.ingest import add_image_frame, add_keypoint_frame, record_detections
+from service.frames.keypoints import BOX_REASON, PARTIAL_REASON, SEATED_REASON, as_static
+from service.frames.measure import measure_people
 from service.frames.repository import (
     frame_observations,
+    frames_points,
     get_frame,
     pending_frames,
     record_frame_outcomes,
@@ -26,6 +30,7 @@ from service.frames.repository import (
 )
 from service.store import make_session_factory
 from service.store.models import Frame, Observation
+from tests.render.scenes import calibration_of, tilted_scene
 from tests.support.store import (
     GRID_COLS,
     SIZE_PX,
@@ -49,17 +54,19 @@ def test_add_keypoint_frame_stores_people_and_counts_usable_evidence(session: Se
         person_at(150.0, 750.0, keypoints=keypoints),
         PersonIn(shoulder_px=(10.0, 10.0), ankle_px=None),
         person_at(805.0, -3.0, unusable_reason="low keypoint scores"),
+        person_at(400.0, 400.0, unusable_reason="why " * 60),  # longer than the column: cut, on both backends
     ]
     received = T0 + timedelta(seconds=2)
     frame, created = add_keypoint_frame(session, "cam-1", timestamp=T0, people=people, received_at=received)
     session.commit()
     assert created
-    assert (frame.status, frame.source, frame.people, frame.result) == ("pending", "keypoints", 3, None)
+    assert (frame.status, frame.source, frame.people, frame.result) == ("pending", "keypoints", 4, None)
     assert (frame.timestamp, frame.received_at) == (T0, received)
 
     observations = frame_observations(session, frame.id)
-    assert [o.person_index for o in observations] == [0, 1, 2]
-    first, no_ankle, low_score = observations
+    assert [o.person_index for o in observations] == [0, 1, 2, 3]
+    first, no_ankle, low_score, verbose = observations
+    assert verbose.unusable_reason == ("why " * 60)[:197] + "..."
     assert first.usable and first.unusable_reason is None
     assert (first.ankle_x_px, first.ankle_y_px, first.shoulder_y_px) == (150.0, 750.0, 690.0)
     assert first.cell == 7 * GRID_COLS + 1
@@ -249,3 +256,40 @@ def test_seen_people_boxes_are_the_usable_people_of_the_latest_image_frames(sess
     session.commit()
     session.refresh(camera)
     assert seen_people_boxes(session, "cam-1", camera.epoch, frames=5) == []
+
+
+def test_what_measuring_reads_of_a_verdict_is_stored_with_each_person(session: Session) -> None:
+    """Posture, a box-bottom contact and a static spot survive the store, so a stored frame is measured as the
+    people were found; a static person placed from their box fits the reason column (PostgreSQL refused its
+    202-character reason when measuring read these from how the reason began)."""
+    camera = add_camera(session, "cam-1")
+    frame, _ = add_image_frame(
+        session, camera, timestamp=T0, content_type="image/jpeg", width_px=SIZE_PX, height_px=SIZE_PX, data=b"jpeg"
+    )
+    box = (380.0, 300.0, 420.0, 500.0)
+    people = [
+        person_at(100.0, 600.0, box_px=box, posture="standing"),
+        PersonIn((300.0, 500.0), None, unusable_reason=SEATED_REASON, box_px=box, posture="seated"),
+        PersonIn((500.0, 420.0), None, unusable_reason=PARTIAL_REASON, box_px=box, posture="partial"),
+        PersonIn(None, (600.0, 640.0), unusable_reason=BOX_REASON, box_px=box, posture="unknown", placed_from_box=True),
+        as_static(PersonIn(None, (700.0, 660.0), unusable_reason=BOX_REASON, box_px=box, placed_from_box=True)),
+        as_static(person_at(200.0, 700.0, box_px=box, posture="seated")),
+    ]
+    assert record_detections(session, frame.id, people, pose_model="test") is not None
+    session.commit()
+    rows = frames_points(session, [frame.id])[frame.id]
+    assert [(r.posture, r.placed_from_box, r.static) for r in rows] == [
+        ("standing", False, False),
+        ("seated", False, False),
+        ("partial", False, False),
+        ("unknown", True, False),
+        (None, True, True),
+        ("seated", False, True),
+    ]
+    assert [r.usable for r in rows] == [True] + [False] * 5
+    cal = calibration_of(tilted_scene(n_people=4))
+    stored = measure_people(rows, cal, distance_threshold_m=10.0)
+    assert stored.result_json() == measure_people(people, cal, distance_threshold_m=10.0).result_json()
+    placed = json.loads(stored.result_json())["people"]
+    assert [p["placed_from"] for p in placed] == ["ankles", "shoulders", "shoulders", "box", "box", "ankles"]
+    assert [p["static"] for p in placed] == [False] * 4 + [True] * 2

@@ -126,6 +126,7 @@ def test_a_mannequin_in_keypoint_frames_turns_static_gives_no_evidence_and_no_vi
             .order_by(Frame.timestamp)
         ).all()
         assert [row.unusable_reason == STATIC_REASON for row in mannequin_rows] == [False] * 7 + [True] * 6
+        assert [row.static for row in mannequin_rows] == [False] * 7 + [True] * 6  # measured again as static
         assert not any(row.usable for row in mannequin_rows[7:])
         usable = session.scalar(select(func.count()).where(Observation.camera_id == "cam-1", Observation.usable))
         stored = session.get(Camera, "cam-1")

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from bench.towncentre import as_calibration, load_annotations, load_calibration
+from service.domain import POSTURES
 from service.frames.keypoints import coco_centres, people_from_detections
-from service.pose.assess import POSTURES
 from service.pose.detector import PersonDetector, schedule
 from service.pose.model_files import DETECTOR, LIGHTNING, POSE_INPUT_PX, REGISTRY, PoseModelName
 from service.pose.movenet import (

@@ -23,6 +23,7 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session, sessionmaker
 
 from service.cli.processes import QUEUE_NAMES
+from service.domain import POSTURES
 from service.queue import FRAMES_QUEUE, QUEUES, RedisDispatcher
 from service.runtime import default_process_split
 from service.store import Frame
@@ -150,6 +151,9 @@ def test_serve_finds_people_in_posted_images(tmp_path: Path) -> None:
             assert frame["source"] == "image" and frame["pose_model"].startswith("rtmdet-nano")
             assert frame["people"] == len(frame["detections"]) >= 8
             assert sum(d["usable"] for d in frame["detections"]) >= 4
+            # The pose's verdict on each person: every usable one stands.
+            assert {d["posture"] for d in frame["detections"]} <= set(POSTURES)
+            assert all(d["posture"] == "standing" for d in frame["detections"] if d["usable"])
             status, png, content_type = app.raw("GET", frame["links"]["overlay"])
             assert status == 200 and content_type == "image/png" and png.startswith(b"\x89PNG")
         assert app.stop() == 0
