@@ -65,8 +65,9 @@ class PersonIn:
     """The client's id for this person across the camera's frames (from its tracker): one id, one individual for
     calibration. Only posted keypoint frames carry one."""
     posture: Posture | None = None
-    """The pose pipeline's verdict, for people found in images; None for posted keypoints (the client's pose model
-    gave no posture). Measuring places a `seated` or `partial` person from their shoulders at their own height."""
+    """The pose pipeline's verdict, for people found in images; for posted people `partial` when their shoulders
+    came without their ankles, else None (the client's pose model gave no posture). Measuring places a `seated` or
+    `partial` person from their shoulders at their own height prior."""
     placed_from_box: bool = False
     """`ankle_px` is the bottom of the detector box, not the ankles (service.frames.keypoints.place_from_boxes):
     measured with the wider sigma of that cue, never evidence."""

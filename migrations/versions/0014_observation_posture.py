@@ -6,7 +6,8 @@ their detector box's bottom with that cue's sigma, and kept a static one (a mann
 reading how the reason began. A static person placed from their box had a reason of 202 characters, longer than
 the column, which PostgreSQL refuses. Upgrade fills the new columns from the reasons (the sentences as
 service.frames.keypoints wrote them; written out here, so that upgrading imports none of the service); posture is
-known for seated, partial and usable image people, NULL for the others stored before. Downgrade drops the columns:
+known for seated, partial and usable image people and for posted people with shoulders and no ankles (`partial`),
+NULL for the others stored before. Downgrade drops the columns:
 the earlier code then measures a static person placed from their box as placed from their ankles (a narrower sigma).
 
 Revision ID: 0014
@@ -46,11 +47,19 @@ def upgrade() -> None:
         sa.column("static", sa.Boolean),
         sa.column("usable", sa.Boolean),
         sa.column("box_left_px", sa.Float),
+        sa.column("shoulder_x_px", sa.Float),
+        sa.column("ankle_x_px", sa.Float),
     )
     c = observations.c
     op.execute(observations.update().where(reason.like(SEATED)).values(posture="seated"))
     op.execute(observations.update().where(reason.like(PARTIAL)).values(posture="partial"))
     op.execute(observations.update().where(c.usable, c.box_left_px.is_not(None)).values(posture="standing"))
+    # A posted person whose shoulders came without ankles: nobody can tell standing from seated.
+    op.execute(
+        observations.update()
+        .where(c.box_left_px.is_(None), c.shoulder_x_px.is_not(None), c.ankle_x_px.is_(None))
+        .values(posture="partial")
+    )
     op.execute(
         observations.update().where(reason.like(BOX) | reason.like(f"{STATIC}; {BOX}")).values(placed_from_box=True)
     )

@@ -53,7 +53,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from service.domain import PersonIn
+from service.domain import PersonIn, Posture
 from service.pose.occlusion import drawn_to_feet_in_front
 
 if TYPE_CHECKING:
@@ -147,7 +147,15 @@ def person_from_keypoints(
         keypoints=keypoints,
         unusable_reason=evidence_problem(shoulder, ankle, image_size_px),
         track_id=track_id,
+        posture=_posted_posture(shoulder, ankle),
     )
+
+
+def _posted_posture(shoulder: Point | None, ankle: Point | None) -> Posture | None:
+    """What a posted person's points say of their posture: `partial` when the shoulders came without the ankles
+    (the client's pose did not see the lower body, so nobody can tell standing from seated: measured with the
+    wide height sigma, as such a person found in an image is), else nothing."""
+    return "partial" if shoulder is not None and ankle is None else None
 
 
 def person_from_detection(person: DetectedPerson, image_size_px: tuple[int, int]) -> PersonIn:
@@ -238,6 +246,7 @@ def person_from_centres(
         ankle_px=ankle_px,
         unusable_reason=evidence_problem(shoulder_px, ankle_px, image_size_px),
         track_id=track_id,
+        posture=_posted_posture(shoulder_px, ankle_px),
     )
 
 

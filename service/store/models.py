@@ -288,7 +288,7 @@ class Observation(Base):
     client_track_id: Mapped[str | None] = mapped_column(String(CLIENT_TRACK_ID_MAX_LENGTH))
     usable: Mapped[bool] = mapped_column(Boolean)
     unusable_reason: Mapped[str | None] = mapped_column(String(REASON_MAX_LENGTH))
-    # What measuring reads of the verdict (service.domain.PersonIn): the pose's posture (None for posted keypoints),
+    # What measuring reads of the verdict (service.domain.PersonIn): the posture (posted people: partial or None),
     # whether the ankle point is a detector box's bottom, whether the person stands at a static spot.
     posture: Mapped[str | None] = mapped_column(String(POSTURE_MAX_LENGTH))
     placed_from_box: Mapped[bool] = mapped_column(Boolean, default=False, server_default=text("false"))

@@ -2,15 +2,21 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import pytest
 
+from service.domain import PersonIn
 from service.frames.keypoints import (
     MIN_SCORE,
+    PARTIAL_REASON,
     coco_centres,
     evidence_problem,
     person_from_centres,
     person_from_keypoints,
 )
+from service.frames.measure import measure_people
+from tests.render.scenes import calibration_of, tilted_scene
 from tests.support.app import coco_person
 
 SIZE = (1920, 1080)
@@ -53,3 +59,28 @@ def test_perspective_tilt_is_tolerated() -> None:
     # 40 degrees from the image vertical: a standing person at the side of a wide-angle, rolled view.
     assert evidence_problem((500, 400), (752, 700), SIZE) is None
     assert person_from_centres((500, 400), None, SIZE).unusable_reason == "ankles not confidently seen"
+
+
+def test_a_posted_person_without_ankles_is_measured_as_partly_seen() -> None:
+    """Shoulders without ankles: the client's pose did not see the lower body, standing or seated, so they are
+    placed from their shoulders with the wide height sigma a person found in an image gets, not the standing one."""
+    hidden = coco_person((500, 400), (510, 700))
+    hidden[15] = [510.0, 700.0, 0.1]
+    by_keypoints = person_from_keypoints(hidden, SIZE)
+    by_centres = person_from_centres((500, 400), None, SIZE)
+    assert by_keypoints.posture == by_centres.posture == "partial"
+    assert person_from_keypoints(coco_person((500, 400), (510, 700)), SIZE).posture is None
+    assert person_from_centres(None, (510, 700), SIZE).posture is None  # placed from the ankles: nothing to guess
+
+    scene = tilted_scene(n_people=4)
+    cal = calibration_of(scene)
+    standing = PersonIn(tuple(scene.tops_px[0]), tuple(scene.bottoms_px[0]))  # type: ignore[arg-type]
+    top = tuple(map(float, scene.tops_px[1]))
+    posted = person_from_centres(top, None, SIZE)  # type: ignore[arg-type]
+    found = PersonIn(top, None, unusable_reason=PARTIAL_REASON, posture="partial")  # type: ignore[arg-type]
+    unsure = replace(posted, posture=None)
+    pairs = [
+        measure_people([standing, p], cal, distance_threshold_m=1.0).result.pairs[0] for p in (posted, found, unsure)
+    ]
+    assert pairs[0] == pairs[1] and pairs[0].distance_m == pairs[2].distance_m
+    assert pairs[0].distance_std_m > 2 * pairs[2].distance_std_m

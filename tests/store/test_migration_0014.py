@@ -20,7 +20,7 @@ NEW_COLUMNS = {"posture", "placed_from_box", "static"}
 PEOPLE = [
     (None, True, True, ("standing", False, False)),  # a standing person found in an image
     (None, True, False, (None, False, False)),  # a posted person: no posture
-    ("ankle centre not visible", False, False, (None, False, False)),
+    ("ankle centre not visible", False, False, ("partial", False, False)),  # posted shoulders, no ankles
     (SEATED_REASON, False, True, ("seated", False, False)),
     (PARTIAL_REASON, False, True, ("partial", False, False)),
     (BOX_REASON, False, True, (None, True, False)),
@@ -46,7 +46,7 @@ def test_0014_reads_the_verdicts_from_the_reasons_and_downgrades_without_losing_
                     text(
                         "INSERT INTO observations (camera_id, frame_id, person_index, shoulder_x_px, shoulder_y_px, "
                         "ankle_x_px, ankle_y_px, usable, unusable_reason, cell, box_left_px) "
-                        "VALUES ('c', :frame, :index, 1, 1, 2, 2, :usable, :reason, 0, :box)"
+                        "VALUES ('c', :frame, :index, 1, 1, :ankle, :ankle, :usable, :reason, 0, :box)"
                     ),
                     {
                         "frame": frame_id,
@@ -54,6 +54,7 @@ def test_0014_reads_the_verdicts_from_the_reasons_and_downgrades_without_losing_
                         "usable": usable,
                         "reason": reason,
                         "box": 1.0 if boxed else None,
+                        "ankle": None if reason == "ankle centre not visible" else 2.0,
                     },
                 )
         assert not NEW_COLUMNS & observation_columns(database_url)
