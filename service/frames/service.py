@@ -23,7 +23,7 @@ from service.calibration.camera_model import calibration_from_version
 from service.calibration.repository import current_calibration, movement_state
 from service.calibration.service import may_be_due, solve_due
 from service.domain import DONE, FAILED, GONE, PENDING, FrameOutcome, PersonIn, StoredCentres
-from service.frames.keypoints import person_from_centres, person_from_keypoints
+from service.frames.keypoints import drop_posted_repeats, person_from_centres, person_from_keypoints
 from service.frames.measure import FrameComputation, measure_frames
 from service.frames.repository import frames_points, pending_frames, record_frame_outcomes
 from service.frames.schemas import PersonObservation
@@ -105,7 +105,7 @@ def people_for_camera(people: Sequence[PersonObservation], camera: Camera, setti
         more = f" (and {len(fields) - 1} more)" if len(fields) > 1 else ""
         detail = f"Invalid request: {fields[0]['field']}: {fields[0]['msg']}{more}"
         raise ProblemError(422, "validation-error", detail, errors=fields)
-    return rows
+    return drop_posted_repeats(rows)
 
 
 def compute_frame_result(

@@ -11,6 +11,7 @@ from service.frames.keypoints import (
     MIN_SCORE,
     PARTIAL_REASON,
     coco_centres,
+    drop_posted_repeats,
     evidence_problem,
     person_from_centres,
     person_from_keypoints,
@@ -84,3 +85,21 @@ def test_a_posted_person_without_ankles_is_measured_as_partly_seen() -> None:
     ]
     assert pairs[0] == pairs[1] and pairs[0].distance_m == pairs[2].distance_m
     assert pairs[0].distance_std_m > 2 * pairs[2].distance_std_m
+
+
+def test_a_body_posted_twice_is_kept_once() -> None:
+    """Shoulder and ankle centres both within 5 % of the person's length of an earlier person's: the same body
+    (two bodies cannot stand in one place); people a shoulder width apart, or seen only in part, are left alone."""
+    people = [
+        person_from_centres((500, 400), (510, 700), SIZE),
+        person_from_centres((503, 402), (508, 712), SIZE),  # 3.6 and 12.2 px off a 300 px person: posted twice
+        person_from_centres((540, 400), (550, 700), SIZE),  # 40 px (13 %) beside: another person
+        person_from_centres((500, 400), None, SIZE),  # shoulders only: nothing to compare the ankles with
+        person_from_centres((501, 401), (511, 701), SIZE),  # the first again: a repeat of person 0, not of 1
+    ]
+    kept = drop_posted_repeats(people)
+    assert [p.shoulder_px is not None for p in kept] == [True, False, True, True, False]
+    assert kept[1].unusable_reason == kept[4].unusable_reason == "same pose as person 0 (posted twice)"
+    assert kept[1].ankle_px is None and kept[1].posture is None
+    assert kept[0] == people[0] and kept[2] == people[2] and kept[3] == people[3]
+    assert drop_posted_repeats(people[2:4]) == people[2:4]
