@@ -106,7 +106,8 @@ def test_solved_calibration_distances_within_their_uncertainty(client: TestClien
     assert np.mean(np.abs(z) < 3) > 0.9
 
 
-def test_unplaceable_people_and_empty_frames(client: TestClient, app: FastAPI, camera: str) -> None:
+def _calibrate_30_degrees_down(app: FastAPI, camera: str) -> None:
+    """A stored calibration: 1000 px, looking 30 degrees down from 4 m, image centre 960, 540."""
     values = CalibrationValues(
         status="ok", person_height_m=1.32, people_used=30, inliers=30, evidence_count=30,
         fx_px=1000.0, fy_px=1000.0, cx_px=960.0, cy_px=540.0, normal=(0.0, -0.8660254, -0.5), rho_m=4.0,
@@ -114,6 +115,10 @@ def test_unplaceable_people_and_empty_frames(client: TestClient, app: FastAPI, c
     with app.state.session_factory() as session:
         add_calibration(session, camera, values, make_current=True)
         session.commit()
+
+
+def test_unplaceable_people_and_empty_frames(client: TestClient, app: FastAPI, camera: str) -> None:
+    _calibrate_30_degrees_down(app, camera)
     unseen = {"keypoints": [[0.0, 0.0, 0.0]] * 17}  # a detection whose joints all failed
     people = [unseen, {"shoulder": [900, 400], "ankle": [900, 700]}, {"shoulder": [960, 400], "ankle": [960, 700]}]
     result = client.post(f"/v1/cameras/{camera}/distances", json={"people": people}).json()
@@ -134,13 +139,7 @@ def test_unplaceable_people_and_empty_frames(client: TestClient, app: FastAPI, c
 def test_a_person_posted_twice_is_measured_once(client: TestClient, app: FastAPI, camera: str) -> None:
     """Two people whose shoulders and ankles lie within a few pixels of each other are one body posted twice (a
     client's detector boxing one person twice): the repeat is not placed, so no phantom violation at 0.0x m."""
-    values = CalibrationValues(
-        status="ok", person_height_m=1.32, people_used=30, inliers=30, evidence_count=30,
-        fx_px=1000.0, fy_px=1000.0, cx_px=960.0, cy_px=540.0, normal=(0.0, -0.8660254, -0.5), rho_m=4.0,
-    )  # fmt: skip
-    with app.state.session_factory() as session:
-        add_calibration(session, camera, values, make_current=True)
-        session.commit()
+    _calibrate_30_degrees_down(app, camera)
     person = {"shoulder": [900, 400], "ankle": [900, 700]}
     again = {"shoulder": [902, 401], "ankle": [899, 703]}
     beside = {"shoulder": [960, 400], "ankle": [960, 700]}
