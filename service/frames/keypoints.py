@@ -47,7 +47,7 @@ A person the pose cannot put on the ground (no trusted ankles) still counts in d
 from __future__ import annotations
 
 import math
-from collections.abc import Collection, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
@@ -250,6 +250,27 @@ def person_from_centres(
     )
 
 
+def _unplace_repeats(
+    people: Sequence[PersonIn], candidates: Sequence[int], same: Callable[[int, int], bool], why: str
+) -> tuple[list[PersonIn], set[int]]:
+    """The people with each candidate that repeats an earlier candidate (`same(a, b)` on positions in
+    `candidates`, a before b, the first not itself a repeat) kept with the reason and without points; and the
+    repeats' indices into `people`."""
+    kept = list(people)
+    repeats: set[int] = set()
+    for b in range(1, len(candidates)):
+        original = next((a for a in range(b) if candidates[a] not in repeats and same(a, b)), None)
+        if original is not None:
+            repeats.add(candidates[b])
+            kept[candidates[b]] = replace(
+                people[candidates[b]],
+                shoulder_px=None,
+                ankle_px=None,
+                unusable_reason=f"same pose as person {candidates[original]} ({why})",
+            )
+    return kept, repeats
+
+
 def drop_posted_repeats(people: Sequence[PersonIn]) -> list[PersonIn]:
     """A posted frame's people with any repeat of an earlier one unplaced: two people whose shoulder centres and
     ankle centres both lie within `DUPLICATE_POSE_FRACTION` of their shoulder-to-ankle length of each other are one
@@ -269,19 +290,7 @@ def drop_posted_repeats(people: Sequence[PersonIn]) -> list[PersonIn]:
         return list(people)
     shoulders = points[:, None, :2] - points[None, :, :2]
     close &= (shoulders * shoulders).sum(axis=2) < limit2
-    kept = list(people)
-    repeats: set[int] = set()
-    for b in range(1, len(whole)):
-        original = next((a for a in range(b) if a not in repeats and close[a, b]), None)
-        if original is not None:
-            repeats.add(b)
-            kept[whole[b]] = replace(
-                people[whole[b]],
-                shoulder_px=None,
-                ankle_px=None,
-                unusable_reason=f"same pose as person {whole[original]} (posted twice)",
-                posture=None,
-            )
+    kept, _ = _unplace_repeats(people, whole, lambda a, b: bool(close[a, b]), "posted twice")
     return kept
 
 
@@ -309,18 +318,12 @@ def people_from_detections(found: Sequence[DetectedPerson], image_size_px: tuple
     ones before it and the more confident detection keeps it.
     """
     people = [person_from_detection(person, image_size_px) for person in found]
-    repeats: set[int] = set()
-    for j, person in enumerate(people):
-        original = next((i for i in range(j) if i not in repeats and _same_pose(people[i], person)), None)
-        if original is None:
-            continue
-        repeats.add(j)
-        people[j] = replace(
-            person,
-            shoulder_px=None,
-            ankle_px=None,
-            unusable_reason=f"same pose as person {original} (a repeated detection, or a neighbour's pose)",
-        )
+
+    def same(a: int, b: int) -> bool:
+        return _same_pose(people[a], people[b])
+
+    why = "a repeated detection, or a neighbour's pose"
+    people, repeats = _unplace_repeats(people, range(len(people)), same, why)
     return place_from_boxes(people, image_size_px, repeats=repeats)
 
 
