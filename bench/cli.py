@@ -305,6 +305,12 @@ def bench_recall(
         None, help="A calibration.json (from `posemetry analyze`) to run the calibrated policy on the atrium too."
     ),
     threads: int | None = typer.Option(None, min=1, help="Inference threads (default: every core)."),
+    clip_frames: int | None = typer.Option(
+        None,
+        min=0,
+        help="How many of the Town Centre clip video's other frames (not the 22 JPEG frames) to check too, evenly "
+        "spread (default: all 104; 0: none).",
+    ),
     markdown: Path | None = typer.Option(None, help="Also write the report to this Markdown file."),
 ) -> None:
     """Detection recall by person size on Town Centre, and against the atrium annotation, per detector policy."""
@@ -328,6 +334,7 @@ def bench_recall(
         lambda message: log.print(f"[dim]{message}[/dim]", highlight=False),
         atrium_calibration=atrium_calibration,
         threads=threads or get_settings().inference_threads,
+        clip_frames=clip_frames,
     )
     lines = recall_lines(result)
     typer.echo("\n".join(lines))
