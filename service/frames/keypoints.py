@@ -281,17 +281,30 @@ def drop_posted_repeats(people: Sequence[PersonIn]) -> list[PersonIn]:
     whole = [i for i, person in enumerate(people) if person.shoulder_px is not None and person.ankle_px is not None]
     if len(whole) < 2:
         return list(people)
-    points = np.array([(*people[i].shoulder_px, *people[i].ankle_px) for i in whole], dtype=float)  # type: ignore[misc]
-    length2 = (points[:, 2] - points[:, 0]) ** 2 + (points[:, 3] - points[:, 1]) ** 2
+    shoulder_x, shoulder_y, ankle_x, ankle_y = np.array(
+        [(*people[i].shoulder_px, *people[i].ankle_px) for i in whole],  # type: ignore[misc]
+        dtype=float,
+    ).T
+    length2 = (ankle_x - shoulder_x) ** 2 + (ankle_y - shoulder_y) ** 2
     limit2 = DUPLICATE_POSE_FRACTION**2 * np.maximum.outer(length2, length2)
-    ankles = points[:, None, 2:] - points[None, :, 2:]
-    close = np.triu((ankles * ankles).sum(axis=2) < limit2, 1)
+    # One n x n array at a time: numpy hands the interpreter lock to other threads around loops over more than
+    # 500 elements, and the API's event loop then waits for the frame writer's thread to give it back (up to the
+    # 5 ms switch interval); an (n, n, 2) array of a 16-person frame is already past that.
+    close = np.triu(
+        _squared(np.subtract.outer(ankle_x, ankle_x)) + _squared(np.subtract.outer(ankle_y, ankle_y)) < limit2, 1
+    )
     if not close.any():  # almost every frame: no two ankle centres that close
         return list(people)
-    shoulders = points[:, None, :2] - points[None, :, :2]
-    close &= (shoulders * shoulders).sum(axis=2) < limit2
+    close &= (
+        _squared(np.subtract.outer(shoulder_x, shoulder_x)) + _squared(np.subtract.outer(shoulder_y, shoulder_y))
+        < limit2
+    )
     kept, _ = _unplace_repeats(people, whole, lambda a, b: bool(close[a, b]), "posted twice")
     return kept
+
+
+def _squared(values: np.ndarray) -> np.ndarray:
+    return np.multiply(values, values, out=values)
 
 
 def _same_pose(a: PersonIn, b: PersonIn) -> bool:
