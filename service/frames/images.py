@@ -107,6 +107,9 @@ def decode(data: bytes, *, max_pixels: int) -> tuple[ImageHeader, np.ndarray]:
     """The header and the decoded (H, W, 3) uint8 BGR image, or ImageError; refuses more than max_pixels.
 
     Raises ImageTooLargeError (an ImageError) for the pixel budget, so callers can answer 413 rather than 422.
+    The picture is the one a viewer shows: OpenCV turns a JPEG by its EXIF orientation (a phone held upright, a
+    camera mounted on its side writes the sensor's rows and says how to turn them), and the header returned gives
+    that picture's size, which is the one the camera, the keypoints and the overlays are in.
     """
     import cv2
 
@@ -121,12 +124,16 @@ def decode(data: bytes, *, max_pixels: int) -> tuple[ImageHeader, np.ndarray]:
     image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
     if image is None:
         raise ImageError(f"the {header.content_type} could not be decoded (corrupt image data)")
-    if image.shape[:2] != (header.height_px, header.width_px):
+    shown = ImageHeader(header.content_type, width_px=image.shape[1], height_px=image.shape[0])
+    if (shown.height_px, shown.width_px) not in (
+        (header.height_px, header.width_px),
+        (header.width_px, header.height_px),
+    ):
         raise ImageError(
-            f"the image decodes to {image.shape[1]}x{image.shape[0]}, not the {header.width_px}x{header.height_px} "
+            f"the image decodes to {shown.width_px}x{shown.height_px}, not the {header.width_px}x{header.height_px} "
             "its header declares"
         )
-    return header, image
+    return shown, image
 
 
 class ImageTooLargeError(ImageError):

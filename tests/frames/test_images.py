@@ -6,12 +6,15 @@ import struct
 import uuid
 import zlib
 
+import cv2
+import numpy as np
 import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
+from service.frames.images import decode
 from service.frames.repository import frame_image
-from tests.support.app import HEIGHT_PX, WIDTH_PX, assert_problem, encoded
+from tests.support.app import HEIGHT_PX, WIDTH_PX, assert_problem, encoded, with_exif_orientation
 from tests.support.dispatch import RecordingDispatcher
 
 
@@ -106,6 +109,35 @@ def test_image_of_another_size_is_422(client: TestClient, camera: str) -> None:
         f"/v1/cameras/{camera}/frames", content=encoded(".jpg", 640, 480), headers={"Content-Type": "image/jpeg"}
     )
     assert_problem(response, 422, "640x480", f"{WIDTH_PX}x{HEIGHT_PX}")
+
+
+@pytest.mark.parametrize(
+    ("orientation", "turn"),
+    [(1, None), (3, cv2.ROTATE_180), (6, cv2.ROTATE_90_CLOCKWISE), (8, cv2.ROTATE_90_COUNTERCLOCKWISE)],
+)
+def test_a_jpeg_is_the_picture_its_exif_orientation_shows(orientation: int, turn: int | None) -> None:
+    """A phone held upright stores the sensor's rows and an orientation: the picture is the one a viewer shows,
+    and its size is the shown one (before, a turned JPEG was refused: it decoded to its size turned)."""
+    rows = np.zeros((360, 640, 3), dtype=np.uint8)
+    rows[:120, :200] = 255  # a white block in the stored top-left corner
+    ok, data = cv2.imencode(".jpg", rows, [cv2.IMWRITE_JPEG_QUALITY, 100])
+    assert ok
+    header, image = decode(with_exif_orientation(data.tobytes(), orientation), max_pixels=10**6)
+    expected = rows if turn is None else cv2.rotate(rows, turn)
+    assert (header.width_px, header.height_px) == (expected.shape[1], expected.shape[0])
+    assert image.shape == expected.shape and np.abs(image.astype(int) - expected).mean() < 2.0
+
+
+def test_an_upright_phone_picture_goes_to_an_upright_camera(client: TestClient) -> None:
+    portrait = client.put("/v1/cameras/phone", json={"image_width_px": 360, "image_height_px": 640})
+    assert portrait.status_code == 201, portrait.text
+    sideways = with_exif_orientation(encoded(".jpg", 640, 360), 6)  # 640 x 360 rows, shown 360 x 640
+    response = client.post("/v1/cameras/phone/frames", content=sideways, headers={"Content-Type": "image/jpeg"})
+    assert response.status_code == 202, response.text
+    landscape = client.put("/v1/cameras/landscape", json={"image_width_px": 640, "image_height_px": 360})
+    assert landscape.status_code == 201, landscape.text
+    response = client.post("/v1/cameras/landscape/frames", content=sideways, headers={"Content-Type": "image/jpeg"})
+    assert_problem(response, 422, "360x640", "640x360")
 
 
 @pytest.mark.parametrize(

@@ -11,6 +11,7 @@ Every route but the health checks needs an API key: `client` sends the admin key
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack
 from pathlib import Path
@@ -133,6 +134,14 @@ def solved(evidence: int, fx_px: float = 1000.0) -> CalibrationValues:
         fx_px=fx_px, fy_px=fx_px, cx_px=960.0, cy_px=540.0, normal=(0.0, -0.8660254, -0.5), rho_m=4.0,
         fx_std_px=12.0, fy_std_px=12.0, normal_std_deg=0.5, rho_std_m=0.05, noise_px=1.2,
     )  # fmt: skip
+
+
+def with_exif_orientation(jpeg: bytes, orientation: int) -> bytes:
+    """The JPEG with an EXIF segment whose Orientation tag (1-8) says how a viewer turns its rows."""
+    entry = struct.pack(">HHIHH", 0x0112, 3, 1, orientation, 0)  # tag, SHORT, one value, the value padded
+    tiff = b"MM\x00\x2a" + struct.pack(">I", 8) + struct.pack(">H", 1) + entry + struct.pack(">I", 0)
+    app1 = b"Exif\x00\x00" + tiff
+    return jpeg[:2] + b"\xff\xe1" + struct.pack(">H", len(app1) + 2) + app1 + jpeg[2:]
 
 
 def encoded(ext: str, width: int = WIDTH_PX, height: int = HEIGHT_PX) -> bytes:
