@@ -97,10 +97,46 @@ def _jpeg_size(data: bytes) -> tuple[int, int]:
 
 def _complete(data: bytes, content_type: str) -> bool:
     """Whether the file has its end marker: decoders fill a truncated image with grey instead of failing."""
-    tail = data[-64:].rstrip(b"\x00")
     if content_type == JPEG:
-        return tail.endswith(b"\xff\xd9")
-    return tail.endswith(_PNG_IEND)
+        return _jpeg_end(data) is not None
+    return data[-64:].rstrip(b"\x00").endswith(_PNG_IEND)
+
+
+def _jpeg_end(data: bytes) -> int | None:
+    """Where the JPEG's end-of-image marker ends, or None when the file stops (or breaks) before it.
+
+    Walked, not looked for at the end of the file: phones append to their JPEGs (a Pixel's or Samsung's motion
+    photo is the JPEG and then a video), and those bytes are not the picture. Segments are skipped by their
+    lengths, and a scan's entropy-coded data up to the next marker, since there 0xFF is always followed by 0x00
+    or a restart marker.
+    """
+    offset, end = 2, len(data)
+    while offset + 2 <= end:
+        if data[offset] != 0xFF:
+            return None
+        marker = data[offset + 1]
+        if marker == 0xD9:
+            return offset + 2
+        if marker == 0xFF or marker in _STANDALONE_MARKERS:  # a fill byte, or a marker without a length
+            offset += 1 if marker == 0xFF else 2
+            continue
+        if offset + 4 > end:
+            return None
+        offset += 2 + struct.unpack(">H", data[offset + 2 : offset + 4])[0]
+        if marker != 0xDA:
+            continue
+        while True:  # the scan's data: to the next 0xFF that starts a marker other than a restart
+            offset = data.find(b"\xff", offset)
+            if offset < 0 or offset + 1 >= end:
+                return None
+            following = data[offset + 1]
+            if following == 0x00 or 0xD0 <= following <= 0xD7:
+                offset += 2
+            elif following == 0xFF:
+                offset += 1
+            else:
+                break
+    return None
 
 
 def decode(data: bytes, *, max_pixels: int) -> tuple[ImageHeader, np.ndarray]:

@@ -11,8 +11,10 @@ import numpy as np
 import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from service.frames.images import decode
+from service.frames.images import ImageError, decode
 from service.frames.repository import frame_image
 from tests.support.app import HEIGHT_PX, WIDTH_PX, assert_problem, encoded, with_exif_orientation
 from tests.support.dispatch import RecordingDispatcher
@@ -90,6 +92,36 @@ def test_multipart_png_with_form_fields(client: TestClient, camera: str, png: by
 def test_broken_jpegs_are_422(client: TestClient, camera: str, jpeg: bytes, mutate, status: int, fragment: str) -> None:  # type: ignore[no-untyped-def]
     response = client.post(f"/v1/cameras/{camera}/frames", content=mutate(jpeg), headers={"Content-Type": "image/jpeg"})
     assert_problem(response, status, fragment)
+
+
+@pytest.mark.parametrize(
+    "params",
+    [[], [cv2.IMWRITE_JPEG_PROGRESSIVE, 1], [cv2.IMWRITE_JPEG_RST_INTERVAL, 4]],
+    ids=["baseline", "progressive", "restart-markers"],
+)
+def test_a_jpeg_is_complete_at_its_end_marker_whatever_follows(params: list[int]) -> None:
+    """Phones append to their JPEGs (a motion photo is the JPEG and then a video): the picture ends at its EOI."""
+    rng = np.random.default_rng(1)
+    picture = cv2.GaussianBlur(rng.integers(0, 255, (360, 640, 3), dtype=np.uint8), (0, 0), 2)
+    ok, encoded_picture = cv2.imencode(".jpg", picture, params)
+    assert ok
+    data = encoded_picture.tobytes()
+    video = b"\x00\x00\x00\x18ftypmp42" + rng.integers(0, 256, 50_000, dtype=np.uint8).tobytes()
+    for complete in (data, data + b"\x00" * 100, data + video):
+        header, image = decode(complete, max_pixels=10**6)
+        assert (header.width_px, header.height_px) == (640, 360)
+        assert np.array_equal(image, cv2.imdecode(encoded_picture, cv2.IMREAD_COLOR))
+    for cut in (len(data) // 3, len(data) // 2, len(data) - 2, len(data) - 1):
+        with pytest.raises(ImageError, match="truncated"):
+            decode(data[:cut], max_pixels=10**6)
+        with pytest.raises(ImageError, match="truncated"):  # cut, then bytes that hold no end marker
+            decode(data[:cut] + b"\xff\x00" * 50, max_pixels=10**6)
+
+
+def test_a_motion_photo_is_accepted(client: TestClient, camera: str, jpeg: bytes, app: FastAPI) -> None:
+    upload = jpeg + b"\x00\x00\x00\x18ftypmp42" + bytes(range(256)) * 40
+    response = client.post(f"/v1/cameras/{camera}/frames", content=upload, headers={"Content-Type": "image/jpeg"})
+    assert response.status_code == 202, response.text
 
 
 def test_truncated_png_is_422(client: TestClient, camera: str, png: bytes) -> None:
@@ -196,3 +228,13 @@ def test_queue_down_is_503_and_the_image_is_kept(
     body = assert_problem(response, 503, "stored")
     with app.state.session_factory() as session:
         assert frame_image(session, uuid.UUID(body["frame_id"])) is not None
+
+
+@given(st.binary(max_size=2000))
+@settings(max_examples=300, deadline=None)
+def test_any_bytes_after_a_jpeg_signature_are_an_image_error_or_an_image(tail: bytes) -> None:
+    try:
+        header, image = decode(b"\xff\xd8\xff" + tail, max_pixels=10**6)
+    except ImageError:
+        return
+    assert image.shape == (header.height_px, header.width_px, 3)
