@@ -16,7 +16,6 @@ import numpy as np
 JPEG = "image/jpeg"
 PNG = "image/png"
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-_PNG_IEND = b"\x00\x00\x00\x00IEND\xaeB`\x82"
 # JPEG start-of-frame markers that carry the image size (baseline, progressive, lossless, arithmetic...).
 _SOF_MARKERS = frozenset({0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF})
 # Markers without a length field.
@@ -45,6 +44,22 @@ def sniff_content_type(data: bytes) -> str | None:
     if data.startswith(b"\xff\xd8\xff"):
         return JPEG
     return None
+
+
+_OTHER_FORMATS = (
+    ("HEIC", lambda data: data[4:8] == b"ftyp" and data[8:12] in (b"heic", b"heix", b"hevc", b"mif1", b"msf1")),
+    ("AVIF", lambda data: data[4:8] == b"ftyp" and data[8:12] in (b"avif", b"avis")),
+    ("WebP", lambda data: data[:4] == b"RIFF" and data[8:12] == b"WEBP"),
+    ("GIF", lambda data: data[:6] in (b"GIF87a", b"GIF89a")),
+    ("TIFF", lambda data: data[:4] in (b"II*\x00", b"MM\x00*")),
+    ("BMP", lambda data: data[:2] == b"BM"),
+)
+
+
+def other_image_format(data: bytes) -> str | None:
+    """The name of a picture format posemetry does not read, when the bytes are one: an iPhone saves HEIC unless
+    told otherwise, and the client deserves to hear what it sent rather than 'unrecognised'."""
+    return next((name for name, matches in _OTHER_FORMATS if matches(data)), None)
 
 
 def read_header(data: bytes) -> ImageHeader:
@@ -97,9 +112,18 @@ def _jpeg_size(data: bytes) -> tuple[int, int]:
 
 def _complete(data: bytes, content_type: str) -> bool:
     """Whether the file has its end marker: decoders fill a truncated image with grey instead of failing."""
-    if content_type == JPEG:
-        return _jpeg_end(data) is not None
-    return data[-64:].rstrip(b"\x00").endswith(_PNG_IEND)
+    return (_jpeg_end(data) if content_type == JPEG else _png_end(data)) is not None
+
+
+def _png_end(data: bytes) -> int | None:
+    """Where the PNG's IEND chunk ends, walking its chunks by their lengths; None when the file stops before it."""
+    offset = len(_PNG_SIGNATURE)
+    while offset + 12 <= len(data):  # length, type and CRC: 12 bytes around a chunk's data
+        (length,) = struct.unpack(">I", data[offset : offset + 4])
+        kind, offset = data[offset + 4 : offset + 8], offset + 12 + length
+        if kind == b"IEND":
+            return offset if offset <= len(data) else None
+    return None
 
 
 def _jpeg_end(data: bytes) -> int | None:

@@ -17,7 +17,7 @@ from fastapi import Request
 from pydantic import TypeAdapter, ValidationError
 from starlette.datastructures import UploadFile
 
-from service.frames.images import JPEG, PNG, sniff_content_type
+from service.frames.images import JPEG, PNG, other_image_format, sniff_content_type
 from service.http.problems import ProblemError
 from service.http.schemas import CLIENT_FRAME_ID_PATTERN, TIMESTAMP_TEXT_JSON_SCHEMA, TimestampText
 
@@ -74,7 +74,14 @@ def _checked_type(data: bytes, declared: str) -> str:
         raise _bad("The image is empty: send the JPEG or PNG bytes as the body (or as the form's `image` file).")
     actual = sniff_content_type(data)
     if actual is None:
-        raise _bad("The body is not a JPEG or PNG image (unrecognised file signature).", 415, "unsupported-media-type")
+        other = other_image_format(data)
+        detail = (
+            "The body is not a JPEG or PNG image (unrecognised file signature)."
+            if other is None
+            else f"The body is a {other} image; posemetry reads JPEG and PNG (set the camera or phone to save JPEG, "
+            "or convert the picture)."
+        )
+        raise _bad(detail, 415, "unsupported-media-type")
     if declared in IMAGE_TYPES and declared != actual:
         raise _bad(f"Declared {declared}, but the bytes are a {actual} image.", 415, "unsupported-media-type")
     return actual

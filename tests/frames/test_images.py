@@ -118,6 +118,16 @@ def test_a_jpeg_is_complete_at_its_end_marker_whatever_follows(params: list[int]
             decode(data[:cut] + b"\xff\x00" * 50, max_pixels=10**6)
 
 
+def test_a_png_is_complete_at_its_iend_chunk_whatever_follows() -> None:
+    data = _encoded_as(".png")
+    for complete in (data, data + b"\x00" * 100, data + b"trailing bytes a tool appended"):
+        header, image = decode(complete, max_pixels=10**6)
+        assert (header.width_px, header.height_px, image.shape) == (48, 32, (32, 48, 3))
+    for cut in (len(data) // 2, len(data) - 12, len(data) - 1):
+        with pytest.raises(ImageError, match="truncated"):
+            decode(data[:cut], max_pixels=10**6)
+
+
 def test_a_motion_photo_is_accepted(client: TestClient, camera: str, jpeg: bytes, app: FastAPI) -> None:
     upload = jpeg + b"\x00\x00\x00\x18ftypmp42" + bytes(range(256)) * 40
     response = client.post(f"/v1/cameras/{camera}/frames", content=upload, headers={"Content-Type": "image/jpeg"})
@@ -192,6 +202,30 @@ def test_wrong_bodies_are_4xx(
 def test_mislabelled_image_is_415(client: TestClient, camera: str, jpeg: bytes) -> None:
     response = client.post(f"/v1/cameras/{camera}/frames", content=jpeg, headers={"Content-Type": "image/png"})
     assert_problem(response, 415, "declared image/png", "image/jpeg")
+
+
+def _encoded_as(ext: str) -> bytes:
+    ok, data = cv2.imencode(ext, np.zeros((32, 48, 3), dtype=np.uint8))
+    assert ok
+    return data.tobytes()
+
+
+@pytest.mark.parametrize(
+    ("name", "data"),
+    [
+        ("HEIC", b"\x00\x00\x00\x18ftypheic\x00\x00\x00\x00mif1heic" + b"\x00" * 64),
+        ("AVIF", b"\x00\x00\x00\x1cftypavif\x00\x00\x00\x00avifmif1" + b"\x00" * 64),
+        ("WebP", _encoded_as(".webp")),
+        ("GIF", b"GIF89a" + b"\x00" * 64),
+        ("TIFF", _encoded_as(".tiff")),
+        ("BMP", _encoded_as(".bmp")),
+    ],
+)
+def test_another_format_is_named_in_the_415(client: TestClient, camera: str, name: str, data: bytes) -> None:
+    as_form = client.post(f"/v1/cameras/{camera}/frames", files={"image": ("photo", data, "application/octet-stream")})
+    assert_problem(as_form, 415, f"a {name} image", "reads JPEG and PNG")
+    mislabelled = client.post(f"/v1/cameras/{camera}/frames", content=data, headers={"Content-Type": "image/jpeg"})
+    assert_problem(mislabelled, 415, f"a {name} image")
 
 
 def test_multipart_without_image_field_is_422(client: TestClient, camera: str, jpeg: bytes) -> None:
