@@ -290,21 +290,18 @@ def drop_posted_repeats(people: Sequence[PersonIn]) -> list[PersonIn]:
     # One n x n array at a time: numpy hands the interpreter lock to other threads around loops over more than
     # 500 elements, and the API's event loop then waits for the frame writer's thread to give it back (up to the
     # 5 ms switch interval); an (n, n, 2) array of a 16-person frame is already past that.
-    close = np.triu(
-        _squared(np.subtract.outer(ankle_x, ankle_x)) + _squared(np.subtract.outer(ankle_y, ankle_y)) < limit2, 1
-    )
+    close = np.triu(_squared_gaps(ankle_x, ankle_y) < limit2, 1)
     if not close.any():  # almost every frame: no two ankle centres that close
         return list(people)
-    close &= (
-        _squared(np.subtract.outer(shoulder_x, shoulder_x)) + _squared(np.subtract.outer(shoulder_y, shoulder_y))
-        < limit2
-    )
+    close &= _squared_gaps(shoulder_x, shoulder_y) < limit2
     kept, _ = _unplace_repeats(people, whole, lambda a, b: bool(close[a, b]), "posted twice")
     return kept
 
 
-def _squared(values: np.ndarray) -> np.ndarray:
-    return np.multiply(values, values, out=values)
+def _squared_gaps(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """(n, n) squared distances between n points."""
+    dx, dy = np.subtract.outer(x, x), np.subtract.outer(y, y)
+    return dx * dx + dy * dy
 
 
 def _same_pose(a: PersonIn, b: PersonIn) -> bool:
